@@ -1,0 +1,111 @@
+"""Camera models: the NYU Depth V2 RGB calibration, lens (un)distortion, intrinsics under crop and resize.
+
+Pixel convention everywhere in f2depth: pixel (u, v) = (column, row) has its centre at integer
+coordinates; ``cv2.resize`` maps a source coordinate x to ``(x + 0.5) * s - 0.5``.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+#: NYU Depth V2 RGB camera (toolbox ``camera_params.m``), 640×480.
+NYU_RGB_K = np.array(
+    [
+        [5.1885790117450188e02, 0.0, 3.2558244941119034e02],
+        [0.0, 5.1946961112127485e02, 2.5373616633400465e02],
+        [0.0, 0.0, 1.0],
+    ]
+)
+#: OpenCV order (k1, k2, p1, p2, k3).
+NYU_RGB_DIST = np.array(
+    [
+        2.0796615318809061e-01,
+        -5.8613825163911781e-01,
+        7.2231363135888329e-04,
+        1.0479627195765181e-03,
+        4.9856986684705107e-01,
+    ]
+)
+NYU_SIZE_HW = (480, 640)
+
+
+def distort_normalized(xy: np.ndarray, dist: np.ndarray) -> np.ndarray:
+    """Brown–Conrady forward model (OpenCV's): ideal normalised (..., 2) → distorted normalised (..., 2)."""
+    k1, k2, p1, p2, k3 = (float(d) for d in dist[:5])
+    x, y = xy[..., 0], xy[..., 1]
+    r2 = x * x + y * y
+    radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+    yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+    return np.stack([xd, yd], axis=-1)
+
+
+def undistort_normalized(uv: np.ndarray, K: np.ndarray, dist: np.ndarray, iters: int = 50) -> np.ndarray:
+    """Distorted pixels (..., 2) → ideal normalised coordinates (..., 2), solved to ~1e-10 by iteration.
+
+    ``cv2.undistortPoints`` stops after 5 iterations, which leaves ~0.1 px errors in NYU's corners;
+    this uses OpenCV's iterative solver with a tight criterion.
+    """
+    pts = np.ascontiguousarray(uv.reshape(-1, 1, 2), dtype=np.float64)
+    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, iters, 1e-12)
+    out = cv2.undistortPointsIter(pts, K, dist, None, None, crit)
+    return out.reshape(uv.shape)
+
+
+def distortion_maps(K: np.ndarray, dist: np.ndarray, hw: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """Maps for ``cv2.remap`` that turn an ideal pinhole image (intrinsics K) into the distorted one.
+
+    Returns (map_x, map_y) float32 (H, W): for each distorted pixel, where to read the ideal image.
+    """
+    h, w = hw
+    u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+    xy = undistort_normalized(np.stack([u, v], -1), K, dist)
+    map_x = K[0, 0] * xy[..., 0] + K[0, 2]
+    map_y = K[1, 1] * xy[..., 1] + K[1, 2]
+    return map_x.astype(np.float32), map_y.astype(np.float32)
+
+
+def distort_image(image: np.ndarray, K: np.ndarray, dist: np.ndarray) -> np.ndarray:
+    """Ideal pinhole image → the image a camera with lens distortion ``dist`` records (bilinear)."""
+    map_x, map_y = distortion_maps(K, dist, image.shape[:2])
+    return cv2.remap(image, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+
+
+def undistort_image(image: np.ndarray, K: np.ndarray, dist: np.ndarray) -> np.ndarray:
+    """``cv2.undistort`` with the same K for the output (as P²Net does): same size, same intrinsics."""
+    return cv2.undistort(image, K, dist)
+
+
+def crop_resize_intrinsics(
+    K: np.ndarray,
+    src_hw: tuple[int, int],
+    crop: int,
+    dst_hw: tuple[int, int],
+    p2net_cxcy_bug: bool = False,
+) -> np.ndarray:
+    """Intrinsics after cropping ``crop`` px from every side of a ``src_hw`` image and resizing to ``dst_hw``.
+
+    With ``p2net_cxcy_bug`` the principal point is computed as P²Net's loader does (the *uncropped*
+    cx, cy divided by the *cropped* size, no half-pixel shift; ``research/p2net.md`` §1.3), which
+    misplaces it by ~10 px at 288×384. Default: the geometrically correct values.
+    """
+    hc, wc = src_hw[0] - 2 * crop, src_hw[1] - 2 * crop
+    if hc <= 0 or wc <= 0:
+        raise ValueError(f"crop {crop} leaves nothing of a {src_hw} image")
+    sy, sx = dst_hw[0] / hc, dst_hw[1] / wc
+    out = np.eye(3)
+    out[0, 0] = K[0, 0] * sx
+    out[1, 1] = K[1, 1] * sy
+    if p2net_cxcy_bug:
+        out[0, 2] = K[0, 2] / wc * dst_hw[1]
+        out[1, 2] = K[1, 2] / hc * dst_hw[0]
+    else:
+        out[0, 2] = (K[0, 2] - crop + 0.5) * sx - 0.5
+        out[1, 2] = (K[1, 2] - crop + 0.5) * sy - 0.5
+    return out
+
+
+def resize_intrinsics(K: np.ndarray, src_hw: tuple[int, int], dst_hw: tuple[int, int]) -> np.ndarray:
+    """Intrinsics after a plain resize (no crop)."""
+    return crop_resize_intrinsics(K, src_hw, 0, dst_hw)
