@@ -1,0 +1,186 @@
+"""MLflow mirror of what the DVC stages do.
+
+DVC metrics files are the source of truth; this module mirrors params, per-epoch metrics and
+artifacts into MLflow so the UI can compare ablations. Every ``dvc repro`` / ``dvc exp run``
+appears as ONE parent run (keyed by the git commit, the DVC experiment name and the id of the DVC
+process that runs the stages) with one child run per stage (and variant).
+
+Tracking URI: ``$MLFLOW_TRACKING_URI`` or ``sqlite:///mlflow.db`` in the repository root.
+Set ``F2DEPTH_MLFLOW=0`` to disable mirroring (the stage still writes its DVC outputs).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import subprocess
+from collections.abc import Iterator, Mapping
+from pathlib import Path
+from typing import Any
+
+EXPERIMENT = "f2depth"
+PARENT_KEY_TAG = "f2depth.pipeline_key"
+
+log = logging.getLogger(__name__)
+
+
+def enabled() -> bool:
+    return os.environ.get("F2DEPTH_MLFLOW", "1").lower() not in ("0", "false", "no", "off")
+
+
+def tracking_uri() -> str:
+    root = Path(os.environ.get("DVC_ROOT", "."))
+    return os.environ.get("MLFLOW_TRACKING_URI") or f"sqlite:///{(root / 'mlflow.db').resolve()}"
+
+
+def git_commit(cwd: str | os.PathLike = ".") -> str:
+    try:
+        out = subprocess.run(
+            ["git", "rev-parse", "HEAD"], cwd=cwd, capture_output=True, text=True, check=True, timeout=10
+        )
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+    return out.stdout.strip()
+
+
+def _dvc_process_id() -> int | None:
+    """PID of the ``dvc`` process that launched this stage, if any (walks up the process tree)."""
+    try:
+        import psutil
+    except ImportError:  # psutil comes with dvc; without it every stage gets its own parent
+        return None
+    proc = psutil.Process()
+    for parent in proc.parents():
+        with contextlib.suppress(psutil.Error):
+            cmd = " ".join(parent.cmdline())
+            if "dvc" in Path(cmd.split(" ")[0]).name or " -m dvc" in cmd or "/dvc " in cmd + " ":
+                return parent.pid
+    return None
+
+
+def flatten(d: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    """``{"a": {"b": 1}}`` → ``{"a.b": 1}``; lists become their string form."""
+    out: dict[str, Any] = {}
+    for k, v in d.items():
+        if str(k).startswith("_"):
+            continue
+        key = f"{prefix}{k}"
+        if isinstance(v, Mapping):
+            out.update(flatten(v, key + "."))
+        else:
+            out[key] = v
+    return out
+
+
+class StageRun:
+    """A handle on the child run of one stage; every method is a no-op when MLflow is disabled."""
+
+    def __init__(self, client: Any = None, run_id: str | None = None) -> None:
+        self._client = client
+        self.run_id = run_id
+
+    @property
+    def active(self) -> bool:
+        return self._client is not None
+
+    def log_params(self, params: Mapping[str, Any]) -> None:
+        if not self.active:
+            return
+        from mlflow.entities import Param
+
+        items = [Param(k, str(v)[:6000]) for k, v in flatten(params).items()]
+        for i in range(0, len(items), 100):
+            self._client.log_batch(self.run_id, params=items[i : i + 100])
+
+    def log_metrics(self, metrics: Mapping[str, Any], step: int | None = None) -> None:
+        if not self.active:
+            return
+        import time
+
+        from mlflow.entities import Metric
+
+        now = int(time.time() * 1000)
+        items = [
+            Metric(k, float(v), now, step or 0)
+            for k, v in flatten(metrics).items()
+            if isinstance(v, (int, float)) and not isinstance(v, bool)
+        ]
+        if items:
+            self._client.log_batch(self.run_id, metrics=items)
+
+    def log_artifact(self, path: str | os.PathLike, artifact_path: str | None = None) -> None:
+        if not self.active:
+            return
+        p = Path(path)
+        if p.is_dir():
+            self._client.log_artifacts(self.run_id, str(p), artifact_path)
+        elif p.exists():
+            self._client.log_artifact(self.run_id, str(p), artifact_path)
+
+    def set_tags(self, tags: Mapping[str, Any]) -> None:
+        if self.active:
+            for k, v in tags.items():
+                self._client.set_tag(self.run_id, k, str(v))
+
+
+def _parent_run(client: Any, experiment_id: str, commit: str, exp_name: str) -> str:
+    dvc_pid = _dvc_process_id()
+    key = f"{commit}:{exp_name}:{dvc_pid if dvc_pid is not None else os.getpid()}"
+    found = client.search_runs(
+        [experiment_id], filter_string=f"tags.`{PARENT_KEY_TAG}` = '{key}'", max_results=1
+    )
+    if found:
+        return found[0].info.run_id
+    run = client.create_run(
+        experiment_id,
+        run_name=f"{exp_name}@{commit[:7]}",
+        tags={PARENT_KEY_TAG: key, "git_commit": commit, "dvc_experiment": exp_name, "kind": "pipeline"},
+    )
+    return run.info.run_id
+
+
+@contextlib.contextmanager
+def stage_run(
+    stage: str, params: Mapping[str, Any], variant: str | None = None, sections: tuple[str, ...] = ()
+) -> Iterator[StageRun]:
+    """Open the child run of ``stage`` (and ``variant``) under this pipeline's parent run.
+
+    ``params`` is the whole params.yaml dict; ``sections`` selects what is logged (default: the
+    stage's own section plus the top-level scalars such as the lambdas).
+    """
+    if not enabled():
+        yield StageRun()
+        return
+    from mlflow.tracking import MlflowClient
+
+    logging.getLogger("alembic").setLevel(logging.WARNING)
+    client = MlflowClient(tracking_uri=tracking_uri())
+    exp = client.get_experiment_by_name(EXPERIMENT)
+    experiment_id = exp.experiment_id if exp else client.create_experiment(EXPERIMENT)
+    commit = git_commit(os.environ.get("DVC_ROOT", "."))
+    exp_name = os.environ.get("DVC_EXP_NAME", "workspace")
+    parent_id = _parent_run(client, experiment_id, commit, exp_name)
+    name = os.environ.get("DVC_STAGE") or (f"{stage}@{variant}" if variant else stage)
+    run = client.create_run(
+        experiment_id,
+        run_name=name,
+        tags={
+            "mlflow.parentRunId": parent_id,
+            "git_commit": commit,
+            "dvc_experiment": exp_name,
+            "stage": stage,
+            "variant": variant or "",
+        },
+    )
+    handle = StageRun(client, run.info.run_id)
+    chosen = sections or (stage,)
+    logged = {k: v for k, v in params.items() if not isinstance(v, Mapping) and not k.startswith("_")}
+    logged.update({s: params[s] for s in chosen if s in params})
+    handle.log_params(logged)
+    status = "FAILED"
+    try:
+        yield handle
+        status = "FINISHED"
+    finally:
+        client.set_terminated(run.info.run_id, status=status)

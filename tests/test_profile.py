@@ -1,0 +1,48 @@
+"""Switching params.yaml between the CPU default and the paper scale."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import yaml
+
+from f2depth import profile
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_profiles_round_trip_keeps_comments(tmp_path):
+    params = tmp_path / "params.yaml"
+    shutil.copy(ROOT / "params.yaml", params)
+    before = params.read_text()
+    changed = profile.apply("paper", params, ROOT / "configs/profiles.yaml")
+    paper = yaml.safe_load(params.read_text())
+    assert paper["prepare"]["height"] == 288 and paper["prepare"]["width"] == 384
+    assert paper["train_depth"]["epochs"] == 44 and paper["train_depth"]["batch_size"] == 12
+    assert paper["flow_finetune"]["epochs"] == 37 and paper["flow_finetune"]["batch_size"] == 20
+    assert paper["lambda3"] == 3.0 and paper["lambda1"] == 0.001
+    assert "prepare.height" in changed
+    assert "# ---- loss weights" in params.read_text()
+    profile.apply("cpu", params, ROOT / "configs/profiles.yaml")
+    assert yaml.safe_load(params.read_text()) == yaml.safe_load(before)
+
+
+def test_every_profile_key_exists_in_params():
+    params = yaml.safe_load((ROOT / "params.yaml").read_text())
+    for name, values in profile.load_profiles(ROOT / "configs/profiles.yaml").items():
+        for dotted in values:
+            node = params
+            for part in dotted.split("."):
+                assert part in node, f"profile {name}: {dotted} missing in params.yaml"
+                node = node[part]
+
+
+def test_cpu_profile_matches_committed_params():
+    """The committed params.yaml is the CPU default: applying `cpu` changes nothing."""
+    params = yaml.safe_load((ROOT / "params.yaml").read_text())
+    for dotted, value in profile.load_profiles(ROOT / "configs/profiles.yaml")["cpu"].items():
+        node = params
+        for part in dotted.split("."):
+            node = node[part]
+        assert node == value, dotted

@@ -1,0 +1,68 @@
+"""MLflow mirror: one parent run per pipeline invocation, one child per stage, params/metrics logged."""
+
+from __future__ import annotations
+
+import pytest
+from mlflow.tracking import MlflowClient
+
+from f2depth import tracking
+
+
+@pytest.fixture()
+def mlflow_uri(tmp_path, monkeypatch):
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", uri)
+    monkeypatch.setenv("F2DEPTH_MLFLOW", "1")
+    monkeypatch.delenv("DVC_STAGE", raising=False)
+    monkeypatch.setenv("DVC_EXP_NAME", "exp-test")
+    return uri
+
+
+def test_flatten_nested_params():
+    assert tracking.flatten({"a": {"b": 1, "c": {"d": [1, 2]}}, "_file": "x", "e": 2}) == {
+        "a.b": 1,
+        "a.c.d": [1, 2],
+        "e": 2,
+    }
+
+
+def test_stages_share_one_parent_and_log(mlflow_uri, tmp_path):
+    params = {"lambda3": 3.0, "train_depth": {"epochs": 2, "lr": [1e-4, 1e-5]}, "prepare": {"height": 96}}
+    art = tmp_path / "table.md"
+    art.write_text("| a |\n")
+    with tracking.stage_run("train_depth", params, variant="full") as run:
+        run.log_metrics({"loss": 1.5, "val": {"a1": 0.5}}, step=0)
+        run.log_metrics({"loss": 1.0}, step=1)
+        run.log_artifact(art)
+        first = run.run_id
+    with tracking.stage_run("prepare", params) as run:
+        second = run.run_id
+
+    client = MlflowClient(tracking_uri=mlflow_uri)
+    r1, r2 = client.get_run(first), client.get_run(second)
+    parent = r1.data.tags["mlflow.parentRunId"]
+    assert parent == r2.data.tags["mlflow.parentRunId"]
+    assert client.get_run(parent).data.tags["dvc_experiment"] == "exp-test"
+    assert r1.data.params["lambda3"] == "3.0"
+    assert r1.data.params["train_depth.epochs"] == "2"
+    assert "prepare.height" not in r1.data.params
+    assert r1.data.metrics["loss"] == 1.0
+    assert [m.value for m in client.get_metric_history(first, "loss")] == [1.5, 1.0]
+    assert r1.data.metrics["val.a1"] == 0.5
+    assert r1.info.status == "FINISHED"
+    assert [a.path for a in client.list_artifacts(first)] == ["table.md"]
+
+
+def test_failed_stage_marks_run_failed(mlflow_uri):
+    with pytest.raises(RuntimeError), tracking.stage_run("synth", {"synth": {}}) as run:
+        rid = run.run_id
+        raise RuntimeError("boom")
+    assert MlflowClient(tracking_uri=mlflow_uri).get_run(rid).info.status == "FAILED"
+
+
+def test_disabled_is_a_no_op(monkeypatch):
+    monkeypatch.setenv("F2DEPTH_MLFLOW", "0")
+    with tracking.stage_run("synth", {}) as run:
+        assert not run.active
+        run.log_metrics({"a": 1.0})
+        run.log_artifact("does-not-exist")
