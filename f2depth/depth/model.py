@@ -1,0 +1,199 @@
+"""DepthModel: DepthCNN (ResNet encoder + depth decoder) and PoseCNN (6-channel ResNet + pose decoder).
+
+Pose convention (Monodepth2 / P²Net, research/p2net.md §6): the pose network sees two frames in
+temporal order ``[a, b]`` and ``predict_pose(img_a, img_b)`` returns ``b_T_a`` = T(t)·R(aa), the transform
+mapping camera-a points into camera b. With target 0 and sources ±1 the source-from-target transforms
+used for warping are ``1_T_0 = predict_pose(I0, I1)`` and ``-1_T_0 = predict_pose(I-1, I0, invert=True)``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import pickle
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import torch
+from torch import nn
+
+from f2depth.depth.decoder import UPSAMPLE_MODES, DepthDecoder, disp_to_depth
+from f2depth.depth.encoder import ResnetEncoder
+from f2depth.depth.pose import PoseDecoder
+from f2depth.depth.resnet import BLOCKS, load_imagenet_resnet
+from f2depth.geometry import pose_from_params
+from f2depth.io import torch_save
+
+CHECKPOINT_FORMAT = "f2depth.depth"
+CHECKPOINT_VERSION = 1
+
+
+@dataclass(frozen=True)
+class DepthModelConfig:
+    """Architecture of a DepthModel. height/width: training input size (multiples of 32)."""
+
+    height: int
+    width: int
+    min_depth: float = 0.1
+    max_depth: float = 10.0
+    num_layers: int = 18
+    upsample_mode: str = "nearest"
+
+    def __post_init__(self) -> None:
+        if self.height <= 0 or self.width <= 0 or self.height % 32 or self.width % 32:
+            raise ValueError(
+                f"height={self.height}, width={self.width}: both must be positive multiples of 32"
+            )
+        if not 0 < self.min_depth < self.max_depth:
+            raise ValueError(f"need 0 < min_depth < max_depth, got {self.min_depth}, {self.max_depth}")
+        if self.num_layers not in BLOCKS:
+            raise ValueError(f"num_layers={self.num_layers}: use one of {sorted(BLOCKS)}")
+        if self.upsample_mode not in UPSAMPLE_MODES:
+            raise ValueError(f"upsample_mode={self.upsample_mode!r}: use one of {UPSAMPLE_MODES}")
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any], source: str = "config") -> DepthModelConfig:
+        names = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(d) - names)
+        if unknown:
+            raise ValueError(f"{source}: unknown DepthModelConfig keys {unknown}; known: {sorted(names)}")
+        try:
+            return cls(**d)
+        except TypeError as exc:
+            raise ValueError(f"{source}: incomplete DepthModelConfig ({exc})") from exc
+
+
+class DepthModel(nn.Module):
+    """DepthCNN + PoseCNN as four named submodules: depth_encoder, depth_decoder, pose_encoder, pose_decoder.
+
+    All inputs are RGB in [0, 1] (normalised inside the encoders). Sizes are free as long as H and W are
+    multiples of 32; ``config.height/width`` record the training size.
+    """
+
+    def __init__(self, config: DepthModelConfig) -> None:
+        super().__init__()
+        self.config = config
+        self.depth_encoder = ResnetEncoder(config.num_layers, num_input_images=1)
+        self.depth_decoder = DepthDecoder(self.depth_encoder.num_ch_enc, upsample_mode=config.upsample_mode)
+        self.pose_encoder = ResnetEncoder(config.num_layers, num_input_images=2)
+        self.pose_decoder = PoseDecoder(self.pose_encoder.num_ch_enc[-1], num_frames_to_predict_for=2)
+
+    # -- depth -----------------------------------------------------------------------------------------
+    def predict_disp(self, img: torch.Tensor) -> torch.Tensor:
+        """img (B,3,H,W) in [0, 1] → sigmoid disparity (B,1,H,W) in (0, 1) (the raw network output)."""
+        return self.depth_decoder(self.depth_encoder(img))
+
+    def disp_to_depth(self, disp: torch.Tensor) -> torch.Tensor:
+        """Sigmoid output (B,1,H,W) → depth (B,1,H,W) metres in [min_depth, max_depth]."""
+        return disp_to_depth(disp, self.config.min_depth, self.config.max_depth)[1]
+
+    def predict_depth(self, img: torch.Tensor) -> torch.Tensor:
+        """img (B,3,H,W) in [0, 1] → depth (B,1,H,W) metres in [min_depth, max_depth]."""
+        return self.disp_to_depth(self.predict_disp(img))
+
+    def forward(
+        self, img: torch.Tensor, pose_pairs: Sequence[tuple[torch.Tensor, torch.Tensor, bool]] = ()
+    ) -> tuple[torch.Tensor, torch.Tensor, list[torch.Tensor]]:
+        """One call for a training step (so DistributedDataParallel sees every parameter used).
+
+        img (B,3,H,W) target in [0, 1]; pose_pairs: (img_a, img_b, invert) per source, as
+        ``predict_pose`` → (sigmoid disp (B,1,H,W), depth (B,1,H,W) metres, [T (B,4,4) per pair]).
+        For inference use ``predict_depth``.
+        """
+        disp = self.predict_disp(img)
+        poses = [self.predict_pose(a, b, invert=inv) for a, b, inv in pose_pairs]
+        return disp, self.disp_to_depth(disp), poses
+
+    # -- pose ------------------------------------------------------------------------------------------
+    def pose_params(self, img_a: torch.Tensor, img_b: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Frames a, b (B,3,H,W) in temporal order → (axis-angle (B,3), translation (B,3)) of b_T_a."""
+        axisangle, translation = self.pose_decoder(self.pose_encoder(torch.cat((img_a, img_b), dim=1)))
+        return axisangle[:, 0], translation[:, 0]
+
+    def predict_pose(self, img_a: torch.Tensor, img_b: torch.Tensor, invert: bool = False) -> torch.Tensor:
+        """Frames a, b (B,3,H,W) in [0, 1], in temporal order → ``b_T_a`` (B,4,4) = T(t)·R(aa).
+
+        ``invert=True`` returns the exact inverse ``a_T_b`` (Monodepth2's ``invert`` for earlier sources).
+        """
+        axisangle, translation = self.pose_params(img_a, img_b)
+        return pose_from_params(axisangle, translation, invert=invert)
+
+    # -- weights ---------------------------------------------------------------------------------------
+    def load_imagenet(self, path: str | os.PathLike) -> None:
+        """Initialise both encoders from a torchvision ImageNet ResNet state_dict file.
+
+        The pose encoder's 6-channel first convolution is the ImageNet one duplicated and halved.
+        """
+        state = load_imagenet_resnet(path, self.config.num_layers)
+        self.depth_encoder.load_imagenet(state, source=str(path))
+        self.pose_encoder.load_imagenet(state, source=str(path))
+
+
+def save_checkpoint(
+    path: str | os.PathLike, model: DepthModel, params: dict[str, Any] | None = None, **extra: Any
+) -> None:
+    """Write ``{"format": "f2depth.depth", "version": 1, "state_dict", "config", "params", **extra}``
+    atomically (docs/formats.md, Models). ``extra`` may hold e.g. optimizer state or the epoch."""
+    reserved = {"format", "version", "state_dict", "config", "params"} & set(extra)
+    if reserved:
+        raise ValueError(f"save_checkpoint: extra keys {sorted(reserved)} clash with the checkpoint format")
+    ckpt = {
+        "format": CHECKPOINT_FORMAT,
+        "version": CHECKPOINT_VERSION,
+        "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()},
+        "config": model.config.to_dict(),
+        "params": dict(params or {}),
+        **extra,
+    }
+    torch_save(path, ckpt)
+
+
+def read_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
+    """Load and validate a depth checkpoint dict (format, version, keys); tensors on CPU."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: depth checkpoint not found; run `dvc repro train_depth` first")
+    try:
+        ckpt = torch.load(path, map_location="cpu", weights_only=True)
+    except (RuntimeError, OSError, ValueError, pickle.UnpicklingError) as exc:
+        raise ValueError(f"{path}: not a readable torch checkpoint ({exc})") from exc
+    if not isinstance(ckpt, dict):
+        raise ValueError(f"{path}: expected a checkpoint dict, got {type(ckpt).__name__}")
+    fmt = ckpt.get("format")
+    if fmt != CHECKPOINT_FORMAT:
+        raise ValueError(
+            f"{path}: format {fmt!r} is not {CHECKPOINT_FORMAT!r}; this is not a DepthCNN/PoseCNN checkpoint"
+            " (flow models are 'f2depth.pwclite')"
+        )
+    version = ckpt.get("version")
+    if version != CHECKPOINT_VERSION:
+        raise ValueError(
+            f"{path}: checkpoint version {version!r} is not supported (expected {CHECKPOINT_VERSION}); "
+            "retrain with this version of f2depth"
+        )
+    missing = [k for k in ("state_dict", "config", "params") if k not in ckpt]
+    if missing:
+        raise ValueError(f"{path}: checkpoint lacks {missing}; the file is incomplete, retrain or re-save it")
+    return ckpt
+
+
+def load_checkpoint(path: str | os.PathLike, map_location: str | torch.device = "cpu") -> DepthModel:
+    """Rebuild a DepthModel from a checkpoint written by ``save_checkpoint`` (strict key check)."""
+    ckpt = read_checkpoint(path)
+    config = DepthModelConfig.from_dict(ckpt["config"], source=f"{path}: config")
+    model = DepthModel(config)
+    try:
+        result = model.load_state_dict(ckpt["state_dict"], strict=False)
+    except RuntimeError as exc:  # shape mismatches
+        raise ValueError(f"{path}: state_dict does not fit DepthModel({config}): {exc}") from exc
+    if result.missing_keys or result.unexpected_keys:
+        raise ValueError(
+            f"{path}: state_dict does not match DepthModel({config}): missing {result.missing_keys[:5]}, "
+            f"unexpected {result.unexpected_keys[:5]}"
+        )
+    return model.to(map_location)

@@ -1,0 +1,113 @@
+"""What the protocols share: reading fields of a sample, making the network input, running a batch.
+
+Samples are plain objects: attributes are read by name (dataclasses, namedtuples, simple classes),
+then mapping keys, and as a last resort a position in a plain tuple (the loaders' documented order).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Iterator, Sequence
+from typing import Any, TypeVar
+
+import cv2
+import numpy as np
+import torch
+from PIL import Image
+
+from f2depth.eval.metrics import PredictDisp, predict_disparity
+
+T = TypeVar("T")
+
+INTERPOLATIONS = ("area", "lanczos")
+"""Input resize filters (the network input is always a shrunk image).
+
+``area`` (default): OpenCV's INTER_AREA (box average), anti-aliased; it is the filter
+``f2depth.data.prepare`` uses to make the training images, so test inputs are filtered like the
+images the network learned from (exact block means at integer factors, which the tests rely on).
+``lanczos``: PIL's LANCZOS on the uint8 image, exactly what P²Net's evaluation does
+(``Image.ANTIALIAS`` is LANCZOS in Pillow ≥ 10) and what its training used; PIL widens the kernel by
+the scale factor, so it anti-aliases too. The two differ by about 1 grey level on average (0..255) on
+a natural photo shrunk 427×561 → 288×384. cv2.INTER_LANCZOS4 is not offered: its fixed 8×8 kernel
+aliases when shrinking.
+"""
+
+
+def field(sample: Any, name: str, position: int | None = None, aliases: Sequence[str] = ()) -> Any:
+    """``sample.<name>`` (or an alias), else ``sample[name]``, else ``sample[position]`` for plain tuples.
+
+    Attributes that are methods (``tuple.index``) or None do not count as present.
+    """
+    for key in (name, *aliases):
+        value = getattr(sample, key, None)
+        if value is not None and not callable(value):  # skips tuple.index / tuple.count methods
+            return value
+    if isinstance(sample, dict):
+        for key in (name, *aliases):
+            if key in sample:
+                return sample[key]
+    plain_tuple = isinstance(sample, tuple) and not hasattr(sample, "_fields")
+    if plain_tuple and position is not None and position < len(sample):
+        return sample[position]
+    raise TypeError(
+        f"evaluation sample of type {type(sample).__name__} has no field '{name}'"
+        + (f" (or {', '.join(aliases)})" if aliases else "")
+        + "; give it that attribute (see the protocol's docstring for the fields it reads)"
+    )
+
+
+def check_rgb(rgb: Any, what: str) -> np.ndarray:
+    """rgb (H,W,3) uint8 → the same array, or a TypeError/ValueError that says what is wrong."""
+    rgb = np.asarray(rgb)
+    if rgb.ndim != 3 or rgb.shape[2] != 3:
+        raise ValueError(f"{what}: rgb must be (H,W,3), got {rgb.shape}")
+    if rgb.dtype != np.uint8:
+        raise ValueError(f"{what}: rgb must be uint8 (0..255), got {rgb.dtype}")
+    return rgb
+
+
+def resize_rgb(rgb: np.ndarray, hw: tuple[int, int], interpolation: str = "area") -> np.ndarray:
+    """rgb (H,W,3) uint8 → (h,w,3) uint8 with the filter named in :data:`INTERPOLATIONS`."""
+    h, w = hw
+    if rgb.shape[:2] == (h, w):
+        return rgb
+    if interpolation == "lanczos":
+        return np.asarray(Image.fromarray(rgb).resize((w, h), Image.Resampling.LANCZOS))
+    if interpolation == "area":
+        return cv2.resize(rgb, (w, h), interpolation=cv2.INTER_AREA)
+    raise ValueError(f"interpolation must be one of {INTERPOLATIONS}, got {interpolation!r}")
+
+
+def to_input(rgb: np.ndarray, hw: tuple[int, int], interpolation: str = "area") -> torch.Tensor:
+    """rgb (H,W,3) uint8 → network input (3,h,w) float32 in [0,1] (no normalisation: the encoder does it)."""
+    small = resize_rgb(rgb, hw, interpolation)
+    return torch.from_numpy(np.ascontiguousarray(small.transpose(2, 0, 1))).float().div_(255.0)
+
+
+def batched(items: Iterable[T], size: int) -> Iterator[list[T]]:
+    """Consecutive chunks of at most ``size`` items."""
+    if size < 1:
+        raise ValueError(f"batch_size must be ≥ 1, got {size}")
+    chunk: list[T] = []
+    for item in items:
+        chunk.append(item)
+        if len(chunk) == size:
+            yield chunk
+            chunk = []
+    if chunk:
+        yield chunk
+
+
+def run_batch(
+    predict_disp: PredictDisp,
+    inputs: Sequence[torch.Tensor],
+    *,
+    device: str | torch.device = "cpu",
+    post_process: bool = False,
+    out_hw: tuple[int, int] | None = None,
+    upsample: str = "nearest",
+) -> np.ndarray:
+    """Stack inputs (3,h,w) → predict (with PP) → disp (B,H,W) float32 NumPy at ``out_hw`` (or h,w)."""
+    x = torch.stack(list(inputs), 0).to(device)
+    with torch.no_grad():
+        disp = predict_disparity(predict_disp, x, post_process=post_process, out_hw=out_hw, upsample=upsample)
+    return disp[:, 0].detach().float().cpu().numpy()

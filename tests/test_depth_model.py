@@ -1,0 +1,156 @@
+"""Tests for f2depth.depth: networks' shapes and ranges, pose convention, checkpoints."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from f2depth.depth import (
+    DepthDecoder,
+    DepthModel,
+    DepthModelConfig,
+    ResnetEncoder,
+    disp_to_depth,
+    load_checkpoint,
+    read_checkpoint,
+    save_checkpoint,
+)
+from f2depth.depth.resnet import ResNet
+
+
+@pytest.fixture(scope="module")
+def model() -> DepthModel:
+    torch.manual_seed(0)
+    return DepthModel(DepthModelConfig(height=64, width=96)).eval()
+
+
+def test_encoder_decoder_shapes():
+    enc = ResnetEncoder(18)
+    feats = enc(torch.rand(2, 3, 64, 96))
+    assert [tuple(f.shape) for f in feats] == [
+        (2, 64, 32, 48),
+        (2, 64, 16, 24),
+        (2, 128, 8, 12),
+        (2, 256, 4, 6),
+        (2, 512, 2, 3),
+    ]
+    for mode in ("nearest", "bilinear"):
+        disp = DepthDecoder(upsample_mode=mode)(feats)
+        assert disp.shape == (2, 1, 64, 96)
+        assert (disp > 0).all() and (disp < 1).all()
+    with pytest.raises(ValueError, match="upsample_mode"):
+        DepthDecoder(upsample_mode="cubic")
+
+
+def test_decoder_layout_is_monodepth2():
+    dec = DepthDecoder()
+    names = {k: tuple(v.shape) for k, v in dec.state_dict().items()}
+    assert names["convs.upconv_4_0.conv.weight"] == (256, 512, 3, 3)
+    assert names["convs.upconv_4_1.conv.weight"] == (256, 256 + 256, 3, 3)
+    assert names["convs.upconv_1_1.conv.weight"] == (32, 32 + 64, 3, 3)
+    assert names["convs.upconv_0_1.conv.weight"] == (16, 16, 3, 3)
+    assert names["dispconv.weight"] == (1, 16, 3, 3)
+
+
+def test_disp_to_depth_range():
+    disp = torch.tensor([0.0, 0.5, 1.0])
+    scaled, depth = disp_to_depth(disp, 0.1, 10.0)
+    assert depth[0].item() == pytest.approx(10.0) and depth[2].item() == pytest.approx(0.1)
+    assert torch.allclose(scaled * depth, torch.ones(3))
+
+
+def test_model_depth_and_pose(model):
+    img = torch.rand(2, 3, 64, 96)
+    with torch.no_grad():
+        depth = model.predict_depth(img)
+        assert depth.shape == (2, 1, 64, 96)
+        assert (depth >= 0.1 - 1e-6).all() and (depth <= 10.0 + 1e-5).all()
+        img2 = torch.rand(2, 3, 64, 96)
+        T = model.predict_pose(img, img2)
+        Ti = model.predict_pose(img, img2, invert=True)
+    assert T.shape == (2, 4, 4)
+    assert torch.allclose(T @ Ti, torch.eye(4).expand(2, 4, 4), atol=1e-5)
+    assert torch.allclose(T[:, 3], torch.tensor([0.0, 0.0, 0.0, 1.0]).expand(2, 4))
+    with torch.no_grad():
+        disp, depth2, poses = model(img, [(img, img2, False), (img2, img, True)])
+    assert torch.equal(depth2, depth) and torch.allclose(disp_to_depth(disp)[1], depth)
+    assert torch.equal(poses[0], T)
+    with torch.no_grad():
+        assert torch.allclose(poses[1], model.predict_pose(img2, img, invert=True))
+    names = [n for n, _ in model.named_children()]
+    assert names == ["depth_encoder", "depth_decoder", "pose_encoder", "pose_decoder"]
+    assert model.pose_encoder.conv1.weight.shape == (64, 6, 7, 7)
+    assert model.pose_decoder.pose_2.weight.shape == (12, 256, 1, 1)
+
+
+def test_input_normalisation():
+    enc = ResnetEncoder(18).eval()
+    ref = ResNet(18, 3).eval()
+    ref.load_state_dict(enc.state_dict())
+    x = torch.rand(1, 3, 32, 32)
+    with torch.no_grad():
+        assert torch.allclose(enc(x)[-1], ref.features((x - 0.45) / 0.225)[-1])
+
+
+def test_config_validation():
+    with pytest.raises(ValueError, match="multiples of 32"):
+        DepthModelConfig(height=100, width=128)
+    with pytest.raises(ValueError, match="min_depth"):
+        DepthModelConfig(height=64, width=64, min_depth=5, max_depth=1)
+    with pytest.raises(ValueError, match="unknown DepthModelConfig keys"):
+        DepthModelConfig.from_dict({"height": 64, "width": 64, "depth_net": "x"})
+    cfg = DepthModelConfig(height=64, width=96, upsample_mode="bilinear")
+    assert DepthModelConfig.from_dict(cfg.to_dict()) == cfg
+
+
+def test_checkpoint_round_trip(tmp_path, model):
+    path = tmp_path / "depth.pt"
+    save_checkpoint(path, model, params={"lambda3": 3.0}, epoch=2)
+    ckpt = read_checkpoint(path)
+    assert ckpt["format"] == "f2depth.depth" and ckpt["version"] == 1 and ckpt["epoch"] == 2
+    assert ckpt["params"] == {"lambda3": 3.0}
+    loaded = load_checkpoint(path).eval()
+    assert loaded.config == model.config
+    img = torch.rand(1, 3, 64, 96)
+    with torch.no_grad():
+        assert torch.equal(loaded.predict_depth(img), model.predict_depth(img))
+
+
+def test_checkpoint_errors(tmp_path, model):
+    # Small hand-made checkpoints: every check fires before any weights are needed.
+    ckpt = {
+        "format": "f2depth.depth",
+        "version": 1,
+        "state_dict": {},
+        "config": model.config.to_dict(),
+        "params": {},
+    }
+    cases = {
+        "format": ({**ckpt, "format": "f2depth.pwclite"}, "not a DepthCNN/PoseCNN checkpoint"),
+        "version": ({**ckpt, "version": 7}, "version 7 is not supported"),
+        "keys": ({k: v for k, v in ckpt.items() if k != "config"}, r"lacks \['config'\]"),
+        "config": ({**ckpt, "config": {**ckpt["config"], "encoder": "vit"}}, "unknown DepthModelConfig keys"),
+        "state": (
+            {**ckpt, "state_dict": {"depth_encoder.conv1.weight": torch.zeros(64, 3, 7, 7)}},
+            "missing",
+        ),
+    }
+    for name, (bad, msg) in cases.items():
+        p = tmp_path / f"{name}.pt"
+        torch.save(bad, p)
+        with pytest.raises(ValueError, match=msg):
+            load_checkpoint(p)
+    with pytest.raises(FileNotFoundError, match="train_depth"):
+        load_checkpoint(tmp_path / "missing.pt")
+    with pytest.raises(ValueError, match="clash"):
+        save_checkpoint(tmp_path / "x.pt", model, format="other")
+
+
+def test_model_load_imagenet(tmp_path):
+    torch.manual_seed(1)
+    ref = ResNet(18, 3, num_classes=1000)
+    torch.save(ref.state_dict(), tmp_path / "r18.pth")
+    m = DepthModel(DepthModelConfig(height=32, width=32))
+    m.load_imagenet(tmp_path / "r18.pth")
+    assert torch.equal(m.depth_encoder.layer2[0].conv1.weight, ref.layer2[0].conv1.weight)
+    assert torch.allclose(m.pose_encoder.conv1.weight[:, 3:], ref.conv1.weight / 2)
