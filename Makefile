@@ -7,6 +7,8 @@ VENV   ?= .venv
 BIN    := $(VENV)/bin
 TORCH  ?= torch==2.13.0
 STAMP  := $(VENV)/.installed
+# DVC stage commands call `python`: make it the venv's.
+export PATH := $(abspath $(VENV))/bin:$(PATH)
 
 .PHONY: install repro test lint bench paper cpu clean-venv
 

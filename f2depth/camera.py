@@ -49,7 +49,10 @@ def undistort_normalized(uv: np.ndarray, K: np.ndarray, dist: np.ndarray, iters:
     """
     pts = np.ascontiguousarray(uv.reshape(-1, 1, 2), dtype=np.float64)
     crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, iters, 1e-12)
-    out = cv2.undistortPointsIter(pts, K, dist, None, None, crit)
+    if hasattr(cv2, "undistortPointsIter"):  # OpenCV 4.x
+        out = cv2.undistortPointsIter(pts, K, dist, None, None, crit)
+    else:  # OpenCV 5 folded the criteria into undistortPoints(src, K, dist, dst, R, P, criteria)
+        out = cv2.undistortPoints(pts, K, dist, None, None, None, crit)
     return out.reshape(uv.shape)
 
 

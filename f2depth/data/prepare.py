@@ -1,0 +1,371 @@
+"""The ``prepare`` stage: NYU raw video → the prepared training set (``docs/formats.md``).
+
+Per training scene: raw RGB frames sorted by timestamp → every ``frame_step``-th → undistorted with the
+NYU RGB calibration (``cv2.undistort``, same K) → ``crop`` px cut from every side → resized to the
+training size (``INTER_AREA`` when shrinking). Frame tuples (target, prev, next) and pairs (t, t+1)
+are consecutive *sampled* frames of one scene. Felzenszwalb superpixels of every tuple target are
+computed on the prepared image as P²Net does (float image in [0, 1]; the colour distance is
+Euclidean, so RGB and P²Net's BGR give the same labels). Synthetic side-car ground truth, when
+present, is cropped like the image and resized with exact nearest-neighbour sampling.
+
+Training scenes are the raw scenes whose room is not among the rooms of the labeled test images
+(``testNdxs``), or those listed in an explicit file. Rooms are compared without the trailing letter
+of split recordings (``bedroom_0076a`` and ``bedroom_0076b`` are the same room).
+
+The whole set is built in a temporary sibling folder and swapped into place at the end, and every file
+is written atomically, so an interrupted run leaves the previous set untouched.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import csv
+import io
+import multiprocessing
+import os
+import re
+import shutil
+import time
+import warnings
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+from tqdm import tqdm
+
+from f2depth.camera import NYU_RGB_DIST, NYU_RGB_K, NYU_SIZE_HW, crop_resize_intrinsics, undistort_image
+from f2depth.data.errors import DataError
+from f2depth.data.images import write_rgb
+from f2depth.data.nyu_labeled import scenes_of_test_images
+from f2depth.data.nyu_raw import RawFrame, list_frames, list_scenes, read_frame
+from f2depth.io import imwrite, save_npz, write_json, write_text
+
+#: Superpixels larger than this many pixels take part in P²Net's planar loss (at 288×384).
+LARGE_SUPERPIXEL_PX = 1000
+P2NET_HW = (288, 384)
+_ROOM_SUFFIX = re.compile(r"(_\d+)[a-z]$")
+
+
+@dataclass(frozen=True)
+class SuperpixelParams:
+    """``skimage.segmentation.felzenszwalb`` arguments (P²Net: 100, 0.5, 50)."""
+
+    scale: float = 100.0
+    sigma: float = 0.5
+    min_size: int = 50
+
+
+@dataclass(frozen=True)
+class PrepareConfig:
+    height: int
+    width: int
+    frame_step: int = 10
+    crop: int = 16
+    p2net_cxcy_bug: bool = False
+    superpixels: SuperpixelParams = field(default_factory=SuperpixelParams)
+    workers: int = 1
+
+    def __post_init__(self) -> None:
+        if self.height < 1 or self.width < 1 or self.frame_step < 1 or self.crop < 0 or self.workers < 0:
+            raise ValueError(f"invalid prepare configuration {self}")
+
+    @property
+    def hw(self) -> tuple[int, int]:
+        return self.height, self.width
+
+
+# ---- per-image operations ---------------------------------------------------------------------------
+
+def crop_and_resize(image: np.ndarray, crop: int, hw: tuple[int, int], nearest: bool = False) -> np.ndarray:
+    """Cut ``crop`` px from every side of an (H, W[, C]) array, then resize to ``hw``.
+
+    Images: ``INTER_AREA`` when shrinking, bilinear otherwise. ``nearest=True`` (depth): exact
+    nearest-neighbour on pixel centres (``INTER_NEAREST_EXACT``; plain ``INTER_NEAREST`` is offset by
+    up to half a source pixel, which would misalign depth and image).
+    """
+    h, w = image.shape[:2]
+    if 2 * crop >= min(h, w):
+        raise ValueError(f"crop {crop} leaves nothing of a {h}×{w} image")
+    c = image[crop:h - crop, crop:w - crop]
+    if nearest:
+        interp = cv2.INTER_NEAREST_EXACT
+    elif hw[0] <= c.shape[0] and hw[1] <= c.shape[1]:
+        interp = cv2.INTER_AREA
+    else:
+        interp = cv2.INTER_LINEAR
+    return cv2.resize(np.ascontiguousarray(c), (hw[1], hw[0]), interpolation=interp)
+
+
+def prepare_image(raw_rgb: np.ndarray, crop: int, hw: tuple[int, int]) -> np.ndarray:
+    """Distorted NYU raw frame (480, 640, 3) → undistorted, cropped, resized RGB uint8 (H, W, 3)."""
+    return crop_and_resize(undistort_image(raw_rgb, NYU_RGB_K, NYU_RGB_DIST), crop, hw)
+
+
+def superpixels(rgb: np.ndarray, params: SuperpixelParams) -> np.ndarray:
+    """Felzenszwalb labels (H, W) uint16, 0-based, of an RGB uint8 image."""
+    from skimage.segmentation import felzenszwalb
+    from skimage.util import img_as_float
+
+    labels = felzenszwalb(img_as_float(rgb), scale=params.scale, sigma=params.sigma, min_size=params.min_size)
+    if labels.max() > np.iinfo(np.uint16).max:
+        raise ValueError(f"{labels.max() + 1} superpixels do not fit uint16; raise superpixels.min_size")
+    return labels.astype(np.uint16)
+
+
+def superpixel_stats(labels: np.ndarray, min_area: int = LARGE_SUPERPIXEL_PX) -> tuple[int, float]:
+    """(number of superpixels, share of pixels in superpixels larger than ``min_area`` px)."""
+    counts = np.bincount(labels.ravel().astype(np.int64))
+    counts = counts[counts > 0]
+    return int(counts.size), float(counts[counts > min_area].sum() / labels.size)
+
+
+def read_synth_gt(path: Path, expect_hw: tuple[int, int] = NYU_SIZE_HW) -> tuple[np.ndarray, np.ndarray]:
+    """Side-car ground truth of a raw frame → (depth float32 (H, W) m, world_T_cam (4, 4)), validated."""
+    try:
+        with np.load(path) as z:
+            arrays = {k: z[k] for k in ("depth", "world_T_cam", "K") if k in z.files}
+    except (OSError, ValueError, EOFError) as exc:
+        raise DataError(path, f"unreadable .npz ({exc})", "regenerate it with `dvc repro synth`") from exc
+    for key in ("depth", "world_T_cam", "K"):
+        if key not in arrays:
+            raise DataError(path, f"no '{key}' array", "regenerate it with `dvc repro synth`")
+    depth, T, K = arrays["depth"], arrays["world_T_cam"], arrays["K"]
+    if depth.shape != tuple(expect_hw) or not np.all(np.isfinite(depth)) or depth.min() < 0:
+        raise DataError(path, f"depth must be finite, ≥ 0 and {expect_hw}, found {depth.shape}")
+    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+        raise DataError(path, f"world_T_cam must be a finite 4×4 matrix, found {T.shape}")
+    if K.shape != (3, 3) or not np.allclose(K, NYU_RGB_K, rtol=1e-6, atol=1e-6):
+        raise DataError(path, "K differs from the NYU RGB calibration the frames are undistorted with",
+                        "the side-car depth would not align with the undistorted image")
+    return depth.astype(np.float32), T.astype(np.float64)
+
+
+# ---- planning ---------------------------------------------------------------------------------------
+
+def room_of(scene: str) -> str:
+    """``bedroom_0076b`` → ``bedroom_0076``: recordings of one room split into parts a, b, …"""
+    return _ROOM_SUFFIX.sub(r"\1", scene)
+
+
+def read_scene_list(path: str | os.PathLike, raw_scenes: Sequence[str]) -> list[str]:
+    """An explicit training-scene file (one name a line; blank lines and ``#`` comments allowed)."""
+    p = Path(path)
+    if not p.is_file():
+        raise DataError(p, "training scene list not found", "fix prepare.train_scenes_file in params.yaml")
+    known, names = set(raw_scenes), []
+    for lineno, line in enumerate(p.read_text().splitlines(), 1):
+        name = line.split("#", 1)[0].strip()
+        if not name:
+            continue
+        if name not in known:
+            raise DataError(p, f"line {lineno}: scene {name!r} is not a folder of the NYU raw data",
+                            "fix the name or remove the line")
+        if name in names:
+            raise DataError(p, f"line {lineno}: scene {name!r} is listed twice")
+        names.append(name)
+    if not names:
+        raise DataError(p, "lists no scenes")
+    return sorted(names)
+
+
+def select_train_scenes(raw_scenes: Sequence[str], test_scenes: set[str]) -> list[str]:
+    """Raw scenes whose room holds no labeled test image."""
+    test_rooms = {room_of(s) for s in test_scenes}
+    return [s for s in raw_scenes if room_of(s) not in test_rooms]
+
+
+@dataclass(frozen=True)
+class FrameTask:
+    frame_id: str
+    raw: RawFrame
+    gt_src: Path | None
+    target: bool  # a tuple's target: gets superpixels
+
+
+def frame_id(frame: RawFrame) -> str:
+    return f"{frame.scene}_{frame.index:05d}"
+
+
+def plan_scene(raw_root: Path, scene: str, step: int, synth_gt: Path | None) -> list[FrameTask]:
+    """The sampled frames of a scene; the first and last are sources only."""
+    sampled = list_frames(raw_root, scene)[::step]
+    gt_dir = synth_gt / "nyu_raw" / scene if synth_gt is not None else None
+    has_gt = gt_dir is not None and gt_dir.is_dir()
+    tasks = []
+    for k, f in enumerate(sampled):
+        gt = gt_dir / f"{f.stem}.npz" if has_gt else None
+        if gt is not None and not gt.is_file():
+            raise DataError(gt, "missing side-car ground truth (its scene has some)",
+                            "re-run `dvc repro synth`")
+        tasks.append(FrameTask(frame_id(f), f, gt, 0 < k < len(sampled) - 1))
+    return tasks
+
+
+# ---- work done in worker processes ------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class _Job:
+    task: FrameTask
+    out: Path
+    config: PrepareConfig
+
+
+def _init_worker() -> None:
+    cv2.setNumThreads(1)
+
+
+def scaled_large_px(hw: tuple[int, int]) -> float:
+    """P²Net's 1000 px threshold scaled by area from 288×384 to ``hw`` (111 px at 96×128)."""
+    return LARGE_SUPERPIXEL_PX * hw[0] * hw[1] / (P2NET_HW[0] * P2NET_HW[1])
+
+
+def _run_job(job: _Job) -> tuple[str, int, float, float] | None:
+    t, cfg, out = job.task, job.config, job.out
+    img = prepare_image(read_frame(t.raw.path), cfg.crop, cfg.hw)
+    write_rgb(out / image_rel(t), img)
+    if t.gt_src is not None:
+        depth, pose = read_synth_gt(t.gt_src)
+        depth = crop_and_resize(depth, cfg.crop, cfg.hw, nearest=True)
+        save_npz(out / gt_rel(t), depth=depth.astype(np.float32), world_T_cam=pose)
+    if not t.target:
+        return None
+    labels = superpixels(img, cfg.superpixels)
+    imwrite(out / segments_rel(t.frame_id), labels)
+    n, share = superpixel_stats(labels)
+    _, share_scaled = superpixel_stats(labels, scaled_large_px(cfg.hw))
+    return t.frame_id, n, share, share_scaled
+
+
+def image_rel(t: FrameTask) -> str:
+    return f"images/{t.raw.scene}/{t.frame_id}.png"
+
+
+def gt_rel(t: FrameTask) -> str:
+    return f"gt/{t.raw.scene}/{t.frame_id}.npz" if t.gt_src is not None else ""
+
+
+def segments_rel(tuple_id: str) -> str:
+    return f"segments/{tuple_id}.png"
+
+
+# ---- the stage --------------------------------------------------------------------------------------
+
+def _csv(header: list[str], rows: list[list[str]]) -> str:
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(header)
+    w.writerows(rows)
+    return buf.getvalue()
+
+
+def _write_tables(out: Path, per_scene: dict[str, list[FrameTask]], config: PrepareConfig) -> tuple[int, int]:
+    frames, tuples, pairs = [], [], []
+    for scene, tasks in per_scene.items():
+        for k, t in enumerate(tasks):
+            frames.append([t.frame_id, scene, f"{scene}/{t.raw.path.name}", image_rel(t), gt_rel(t)])
+            if t.target:
+                tuples.append([t.frame_id, scene, t.frame_id, tasks[k - 1].frame_id, tasks[k + 1].frame_id,
+                               segments_rel(t.frame_id)])
+            if k + 1 < len(tasks):
+                pairs.append([t.frame_id, scene, t.frame_id, tasks[k + 1].frame_id])
+    write_text(out / "frames.csv", _csv(["frame_id", "scene", "raw_file", "image", "gt"], frames))
+    write_text(out / "tuples.csv", _csv(["tuple_id", "scene", "target", "prev", "next", "segments"], tuples))
+    write_text(out / "pairs.csv", _csv(["pair_id", "scene", "frame1", "frame2"], pairs))
+    K = crop_resize_intrinsics(NYU_RGB_K, NYU_SIZE_HW, config.crop, config.hw, config.p2net_cxcy_bug)
+    write_json(out / "camera.json", {
+        "K": K, "height": config.height, "width": config.width, "p2net_cxcy_bug": config.p2net_cxcy_bug,
+        "source_K": NYU_RGB_K, "source_dist": NYU_RGB_DIST, "source_height": NYU_SIZE_HW[0],
+        "source_width": NYU_SIZE_HW[1], "crop": config.crop, "frame_step": config.frame_step,
+    })
+    return len(tuples), len(pairs)
+
+
+def _run_all(jobs: list[_Job], workers: int, progress: bool) -> list[tuple[str, int, float, float] | None]:
+    bar = tqdm(total=len(jobs), desc="prepare", unit="frame", disable=not progress)
+    try:
+        if workers <= 1:
+            _init_worker()
+            results = []
+            for job in jobs:
+                results.append(_run_job(job))
+                bar.update()
+            return results
+        ctx = multiprocessing.get_context("spawn")
+        with cf.ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker) as pool:
+            results = []
+            for r in pool.map(_run_job, jobs, chunksize=max(1, min(16, len(jobs) // (4 * workers)))):
+                results.append(r)
+                bar.update()
+            return results
+    finally:
+        bar.close()
+
+
+def prepare(
+    nyu_raw: str | os.PathLike,
+    nyu_labeled: str | os.PathLike,
+    nyu_splits: str | os.PathLike,
+    out_dir: str | os.PathLike,
+    config: PrepareConfig,
+    synth_gt: str | os.PathLike | None = None,
+    train_scenes_file: str | os.PathLike | None = None,
+    progress: bool = True,
+) -> dict:
+    """Build ``out_dir`` (``data/prepared``) and return the stage metrics."""
+    start = time.perf_counter()
+    raw_root, out = Path(nyu_raw), Path(out_dir)
+    raw_scenes = list_scenes(raw_root)
+    if train_scenes_file is not None:
+        scenes = read_scene_list(train_scenes_file, raw_scenes)
+    else:
+        scenes = select_train_scenes(raw_scenes, scenes_of_test_images(nyu_labeled, nyu_splits))
+        if not scenes:
+            raise DataError(raw_root, f"all {len(raw_scenes)} raw scenes are rooms of labeled test images",
+                            "add other scenes or set prepare.train_scenes_file")
+    gt_root = Path(synth_gt) if synth_gt is not None else None
+    per_scene = {s: plan_scene(raw_root, s, config.frame_step, gt_root) for s in scenes}
+    short = [s for s, tasks in per_scene.items() if len(tasks) < 3]
+    if short:
+        warnings.warn(f"{len(short)} scene(s) have fewer than 3 sampled frames and give no frame tuple: "
+                      f"{', '.join(short[:5])}", stacklevel=2)
+
+    tmp = out.parent / f".{out.name}.tmp-{os.getpid()}"
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir(parents=True)
+    try:
+        jobs = [_Job(t, tmp, config) for tasks in per_scene.values() for t in tasks]
+        results = [r for r in _run_all(jobs, config.workers, progress) if r is not None]
+        n_tuples, n_pairs = _write_tables(tmp, per_scene, config)
+        _swap_into_place(tmp, out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    stats = np.array([r[1:] for r in results], dtype=np.float64).reshape(-1, 3)
+    mean = stats.mean(axis=0) if len(stats) else np.zeros(3)
+    return {
+        "raw_scenes": len(raw_scenes),
+        "scenes": len(scenes),
+        "scenes_without_tuples": len(short),
+        "frames": len(jobs),
+        "frames_with_gt": sum(j.task.gt_src is not None for j in jobs),
+        "tuples": n_tuples,
+        "pairs": n_pairs,
+        "superpixels_per_target": float(mean[0]),
+        "superpixel_share_over_1000px": float(mean[1]),
+        "superpixel_share_over_scaled_px": float(mean[2]),
+        "superpixel_scaled_px": round(scaled_large_px(config.hw), 1),
+        "height": config.height,
+        "width": config.width,
+        "seconds": round(time.perf_counter() - start, 2),
+    }
+
+
+def _swap_into_place(tmp: Path, out: Path) -> None:
+    """Replace ``out`` by the finished ``tmp`` folder (two renames; the old set is deleted last)."""
+    old = out.parent / f".{out.name}.old-{os.getpid()}"
+    if out.exists():
+        out.rename(old)
+    tmp.rename(out)
+    shutil.rmtree(old, ignore_errors=True)
