@@ -17,6 +17,10 @@ $(STAMP): pyproject.toml requirements.lock
 	$(BIN)/python -m pip install -q --upgrade pip
 	$(BIN)/python -m pip install -q "$(TORCH)"
 	$(BIN)/python -m pip install -q -r requirements.lock
+	@# Open3D (TSDF fusion for `f2depth reconstruct`) loads libusb-1.0 from the system.
+	@ldconfig -p | grep -q libusb-1.0 || { if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
+	  apt-get update -qq && apt-get install -y -qq libusb-1.0-0 >/dev/null; \
+	  else echo "NOTE: install libusb-1.0 (Debian/Ubuntu: sudo apt-get install libusb-1.0-0) for f2depth reconstruct"; fi; }
 	$(BIN)/python -m pip install -q --no-deps --no-build-isolation -e .
 	@touch $(STAMP)
 

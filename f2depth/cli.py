@@ -1,0 +1,271 @@
+"""The ``f2depth`` command: ``predict``, ``export`` and ``reconstruct`` (f2depth.inference does the work).
+
+Exit codes: 0 success; 1 bad input (the one line on stderr names the file and the problem); 2 wrong
+command-line usage; 3 an optional dependency is missing; 130 interrupted (files already written are
+complete: every output is written atomically).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+EXIT_INPUT, EXIT_USAGE, EXIT_MISSING, EXIT_INTERRUPTED = 1, 2, 3, 130
+
+RELATIVE_NOTE = """\
+Depth is RELATIVE: the networks are self-supervised (trained from video without depth), so a prediction
+is correct up to one unknown scale factor per scene. Its values lie in the network's nominal range
+(0.1-10 "metres") but are not metric. To make them metric give either --scale S (every depth is
+multiplied by S, e.g. a factor measured once for your camera) or --scale-from FILE, a reference depth
+map of the first frame (16-bit PNG in millimetres, 0/65535 = no depth, or a .npy in metres): the factor
+median(reference) / median(prediction) over the reference's valid pixels is applied to every frame."""
+
+PREDICT_DESCRIPTION = """\
+Predict depth for an image, a folder of images (sorted by name; other file types ignored) or a video
+(OpenCV/FFmpeg). Each frame is resized to the network's training size, predicted, and its disparity
+resized back to the frame's size."""
+
+PREDICT_EPILOG = """\
+Writes per frame (video frames are named frame_000000, ...):
+  <name>_depth_mm.png     uint16 depth in millimetres
+  <name>_depth.npy        float32 depth in metres
+  <name>_depth_color.png  colour-mapped disparity (magma)
+  <name>_points.ply       with --ply: coloured points in the camera frame (x right, y down, z forward)
+and predict.json (scale, model, intrinsics). Every file is written atomically.
+exit codes: 0 ok, 1 bad input, 2 usage error, 3 optional dependency missing, 130 interrupted"""
+
+RECONSTRUCT_DESCRIPTION = """\
+Fuse a sequence's predicted depth with its known poses into a TSDF volume (Open3D's
+ScalableTSDFVolume, optional extra 'recon') and write a coloured triangle mesh (.ply, marching cubes).
+Poses come from 7-Scenes .pose.txt files or from the synthetic ground truth (.npz). Predicted depth
+is relative, so it is scaled to the reference depth (the 7-Scenes Kinect depth or the ground truth)
+by median ratios (--scaling), or by a fixed --scale."""
+
+EXPORT_DESCRIPTION = """\
+Export the depth network (image (B,3,H,W) in [0,1] -> depth (B,1,H,W), dynamic batch) and check the
+export against PyTorch with onnxruntime (max abs difference printed); nothing is written if it fails."""
+
+EXIT_NOTE = "exit codes: 0 ok, 1 bad input, 2 usage error, 3 optional dependency missing, 130 interrupted"
+
+
+class UsageError(Exception):
+    """Inconsistent options that argparse cannot express."""
+
+
+def _positive_int(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be ≥ 1, got {value}")
+    return value
+
+
+def _positive_float(text: str) -> float:
+    value = float(text)
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
+    return value
+
+
+def _multiple_of_32(text: str) -> int:
+    value = int(text)
+    if value <= 0 or value % 32:
+        raise argparse.ArgumentTypeError(f"must be a positive multiple of 32, got {value}")
+    return value
+
+
+def _add_network(p: argparse.ArgumentParser, required: bool = True) -> None:
+    group = p.add_mutually_exclusive_group(required=required)
+    group.add_argument("--model", type=Path, metavar="M",
+                       help="depth checkpoint (f2depth.depth .pt, e.g. models/depth_<variant>/model.pt)")
+    group.add_argument("--onnx", type=Path, metavar="F",
+                       help="run an ONNX export (f2depth export) with onnxruntime instead of PyTorch")
+    p.add_argument("--post-process", action="store_true",
+                   help="Monodepth's flip post-processing (predicts image and mirror image, blends; 2× time)")
+    p.add_argument("--batch-size", type=_positive_int, default=4, help="frames per network call (default 4)")
+    p.add_argument("--device", default="auto", help="auto | cpu | cuda | cuda:N (default auto)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar (default: bar on a terminal)")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="f2depth", description="F2Depth: self-supervised indoor monocular depth. Use a trained model.",
+        epilog=EXIT_NOTE,
+    )
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    fmt = argparse.RawDescriptionHelpFormatter
+
+    p = sub.add_parser("predict", formatter_class=fmt, help="depth maps of an image, a folder or a video",
+                       description=PREDICT_DESCRIPTION + "\n\n" + RELATIVE_NOTE, epilog=PREDICT_EPILOG)
+    _add_network(p)
+    p.add_argument("--input", type=Path, required=True, metavar="PATH",
+                   help="image, folder of images or video")
+    p.add_argument("--output", type=Path, required=True, metavar="DIR", help="output folder (created)")
+    scale = p.add_mutually_exclusive_group()
+    scale.add_argument("--scale", type=_positive_float, metavar="S", help="multiply every depth by S")
+    scale.add_argument("--scale-from", type=Path, metavar="FILE",
+                       help="reference depth of the first frame (mm PNG or metres .npy): median scaling")
+    p.add_argument("--ply", action="store_true", help="also write a coloured point cloud per frame")
+    p.add_argument("--fx", type=_positive_float,
+                   help="focal length x in pixels of the input image, for --ply "
+                        "(default: NYU Depth V2's field of view, fx = fy = 0.811*W)")
+    p.add_argument("--fy", type=_positive_float, help="focal length y in pixels (default fx)")
+    p.add_argument("--cx", type=float, help="principal point x in pixels (default (W-1)/2)")
+    p.add_argument("--cy", type=float, help="principal point y in pixels (default (H-1)/2)")
+    p.add_argument("--upsample", choices=("bilinear", "nearest"), default="bilinear",
+                   help="resizing of the disparity back to the input size (default bilinear)")
+    p.set_defaults(func=_cmd_predict)
+
+    p = sub.add_parser("export", formatter_class=fmt, help="export the depth network (ONNX)",
+                       description=EXPORT_DESCRIPTION, epilog=EXIT_NOTE)
+    p.add_argument("--model", type=Path, required=True, metavar="M", help="depth checkpoint (.pt)")
+    p.add_argument("--format", choices=("onnx",), default="onnx", help="export format (onnx)")
+    p.add_argument("--output", type=Path, required=True, metavar="F", help="output file (.onnx)")
+    p.add_argument("--height", type=_multiple_of_32, help="input height (default: the training height)")
+    p.add_argument("--width", type=_multiple_of_32, help="input width (default: the training width)")
+    p.add_argument("--opset", type=_positive_int, default=17, help="ONNX opset (default 17)")
+    p.set_defaults(func=_cmd_export)
+
+    p = sub.add_parser("reconstruct", formatter_class=fmt, help="TSDF fusion of a posed sequence → mesh",
+                       description=RECONSTRUCT_DESCRIPTION, epilog=EXIT_NOTE)
+    _add_network(p, required=False)
+    p.add_argument("--sequence", type=Path, required=True, metavar="DIR",
+                   help="7-Scenes <scene>/seq-XX folder, or a folder of the sequence's images")
+    p.add_argument("--poses", choices=("7scenes", "synth"), default="7scenes",
+                   help="7scenes: frame-*.pose.txt and 7-Scenes K; synth: <key>.npz in --gt "
+                        "(default 7scenes)")
+    p.add_argument("--gt", type=Path, metavar="DIR", help="synthetic ground-truth folder for --poses synth")
+    p.add_argument("--output", type=Path, required=True, metavar="MESH", help="output mesh (.ply)")
+    p.add_argument("--stride", type=_positive_int, default=1, help="use every N-th frame (default 1)")
+    p.add_argument("--max-frames", type=_positive_int, help="use at most this many frames")
+    p.add_argument("--scaling", choices=("sequence", "frame", "fixed"), default="sequence",
+                   help="sequence: one factor, the median of per-frame median ratios (default); frame: "
+                        "per-frame median ratio; fixed: --scale")
+    p.add_argument("--scale", type=_positive_float, default=1.0,
+                   help="factor for --scaling fixed (default 1)")
+    p.add_argument("--depth-source", choices=("predicted", "reference"), default="predicted",
+                   help="fuse the predicted depth (default) or the reference depth (a sanity check)")
+    p.add_argument("--voxel", type=_positive_float, default=0.02,
+                   help="voxel size in metres (default 0.02)")
+    p.add_argument("--trunc", type=_positive_float, help="TSDF truncation in metres (default 4 voxels)")
+    p.add_argument("--max-depth", type=_positive_float, default=5.0,
+                   help="ignore depth beyond this (m, default 5)")
+    p.add_argument("--evaluate", action="store_true",
+                   help="compare with the mesh fused from the reference depth: accuracy, completeness")
+    p.add_argument("--threshold", type=_positive_float, default=0.05,
+                   help="distance (m) for completeness/precision (default 0.05)")
+    p.add_argument("--reference-mesh", type=Path, metavar="MESH", help="also write the reference mesh")
+    p.add_argument("--metrics", type=Path, metavar="FILE", help="write the summary and metrics as JSON")
+    p.set_defaults(func=_cmd_reconstruct)
+    return parser
+
+
+def _out(text: str) -> None:
+    sys.stdout.write(text + "\n")
+
+
+def _cmd_predict(args: argparse.Namespace) -> int:
+    from f2depth.inference.backends import load_backend
+    from f2depth.inference.predict import Predictor, PredictSettings, run_predict
+    from f2depth.inference.sources import open_source
+
+    source = open_source(args.input)
+    backend = load_backend(args.model, args.onnx, args.device)
+    settings = PredictSettings(
+        args.output, batch_size=args.batch_size, scale=args.scale, scale_from=args.scale_from, ply=args.ply,
+        K_args={"fx": args.fx, "fy": args.fy, "cx": args.cx, "cy": args.cy},
+        progress=False if args.no_progress else None,
+    )
+    predictor = Predictor(backend, post_process=args.post_process, upsample=args.upsample)
+    summary = run_predict(source, predictor, settings, total=len(source), input_desc=str(args.input))
+    kind = "metric" if summary["metric"] else "relative (no --scale/--scale-from)"
+    _out(f"wrote {summary['frames']} frame(s) to {args.output} ({backend.name}, "
+         f"scale {summary['scale']:.4g}, {kind})")
+    return 0
+
+
+def _cmd_export(args: argparse.Namespace) -> int:
+    from f2depth.inference.backends import load_depth_model
+    from f2depth.inference.export import export_onnx
+
+    model = load_depth_model(args.model, "cpu")
+    parity = export_onnx(model, args.output, args.height, args.width, opset=args.opset,
+                         source=str(args.model))
+    h, w = parity.hw
+    _out(f"wrote {args.output} ({h}×{w}, dynamic batch, opset {args.opset})")
+    _out(f"parity vs PyTorch on {parity.batch} images: max abs difference {parity.max_abs:.3g} m "
+         f"(max relative {parity.max_rel:.3g})")
+    return 0
+
+
+def _cmd_reconstruct(args: argparse.Namespace) -> int:
+    from f2depth.inference.backends import load_backend
+    from f2depth.inference.predict import Predictor
+    from f2depth.inference.reconstruct import ReconstructSettings, TSDFSettings, reconstruct
+    from f2depth.inference.sequences import sevenscenes_sequence, synth_sequence
+    from f2depth.io import write_json
+
+    if args.depth_source == "predicted" and args.model is None and args.onnx is None:
+        raise UsageError("give --model or --onnx (or --depth-source reference)")
+    if args.poses == "synth" and args.gt is None:
+        raise UsageError("--poses synth needs --gt DIR (the sequence's ground-truth .npz folder)")
+    tsdf = TSDFSettings(voxel=args.voxel, trunc=args.trunc, max_depth=args.max_depth)
+    if args.poses == "synth":
+        frames = synth_sequence(args.sequence, args.gt, args.stride, args.max_frames)
+    else:
+        frames = sevenscenes_sequence(args.sequence, args.stride, args.max_frames)
+    predictor = None
+    if args.depth_source == "predicted":
+        backend = load_backend(args.model, args.onnx, args.device)
+        predictor = Predictor(backend, post_process=args.post_process)
+    settings = ReconstructSettings(
+        args.output, tsdf=tsdf, scaling=args.scaling, scale=args.scale, depth_source=args.depth_source,
+        evaluate=args.evaluate, reference_mesh=args.reference_mesh, threshold=args.threshold,
+        batch_size=args.batch_size, progress=False if args.no_progress else None,
+    )
+    summary = reconstruct(frames, predictor, settings)
+    summary["sequence"] = str(args.sequence)
+    if args.metrics is not None:
+        write_json(args.metrics, summary)
+    _out(f"wrote {args.output}: {summary['vertices']} vertices, {summary['triangles']} triangles from "
+         f"{summary['frames']} frames (depth scale {summary['scale_median']:.4g}, {summary['scaling']})")
+    if "metrics" in summary:
+        m = summary["metrics"]
+        _out(f"vs reference: accuracy mean {m['accuracy_mean']:.4f} m, median {m['accuracy_median']:.4f} m; "
+             f"completeness {m['completeness']:.3f}, precision {m['precision']:.3f}, F {m['fscore']:.3f} "
+             f"(< {m['threshold']:g} m)")
+    return 0
+
+
+def _fail(command: str, message: str, code: int) -> int:
+    text = " ".join(str(message).split())  # exactly one line
+    sys.stderr.write(f"f2depth {command}: error: {text}\n")
+    return code
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the command line; returns the exit code (argparse exits with 2 itself on usage errors)."""
+    args = build_parser().parse_args(argv)
+    from f2depth.data.errors import DataError
+    from f2depth.inference.export import ExportError
+    from f2depth.inference.optional import MissingDependency
+    from f2depth.params import ParamsError
+
+    try:
+        return args.func(args)
+    except UsageError as exc:
+        return _fail(args.command, str(exc), EXIT_USAGE)
+    except MissingDependency as exc:
+        return _fail(args.command, str(exc), EXIT_MISSING)
+    except (DataError, ParamsError, ExportError) as exc:
+        return _fail(args.command, str(exc), EXIT_INPUT)
+    except OSError as exc:
+        where = f"{exc.filename}: " if exc.filename else ""
+        return _fail(args.command, f"{where}{exc.strerror or exc}", EXIT_INPUT)
+    except KeyboardInterrupt:
+        return _fail(args.command, "interrupted; every file written so far is complete", EXIT_INTERRUPTED)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,132 @@
+"""Per-frame output files of ``f2depth predict``, each written atomically (f2depth.io):
+
+- ``<name>_depth_mm.png``: uint16 depth in millimetres (0 = no depth, saturates at 65535 mm),
+- ``<name>_depth.npy``: float32 (H, W) depth in metres,
+- ``<name>_depth_color.png``: the disparity (1/depth) colour-mapped with magma (minimum → black,
+  95th percentile → white),
+- ``<name>_points.ply`` (optional): binary little-endian PLY, one vertex per pixel (row-major order) with
+  float ``x y z`` (metres, camera frame: x right, y down, z forward) and uchar ``red green blue``.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+
+from f2depth.camera import NYU_RGB_K, NYU_SIZE_HW
+from f2depth.geometry import backproject
+from f2depth.io import imwrite, save_npy, write_bytes
+
+SUFFIXES = {"mm": "_depth_mm.png", "npy": "_depth.npy", "color": "_depth_color.png", "ply": "_points.ply"}
+MM_MAX = 65535
+#: horizontal focal length per image width of the NYU Depth V2 RGB camera (the training data)
+NYU_FX_PER_WIDTH = float(NYU_RGB_K[0, 0]) / NYU_SIZE_HW[1]
+_PLY_DTYPE = np.dtype(
+    [("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1"), ("green", "u1"), ("blue", "u1")]
+)
+
+
+def depth_to_mm(depth: np.ndarray) -> np.ndarray:
+    """depth (H,W) metres → uint16 millimetres, rounded, clipped to [0, 65535]."""
+    return np.clip(np.rint(np.asarray(depth, np.float64) * 1000.0), 0, MM_MAX).astype(np.uint16)
+
+
+def colorize_depth(depth: np.ndarray, percentile: float = 95.0) -> np.ndarray:
+    """depth (H,W) metres → BGR uint8 (H,W,3): disparity mapped from its minimum to its ``percentile``
+    (Monodepth2's display) through magma; near is bright, far is dark, invalid (≤ 0) is black."""
+    valid = depth > 0
+    disp = np.where(valid, 1.0 / np.where(valid, depth, 1.0), 0.0)
+    vmin = float(disp[valid].min()) if valid.any() else 0.0
+    vmax = float(np.percentile(disp[valid], percentile)) if valid.any() else 1.0
+    grey = np.clip((disp - vmin) / max(vmax - vmin, 1e-12) * 255.0, 0, 255).astype(np.uint8)
+    out = cv2.applyColorMap(grey, cv2.COLORMAP_MAGMA)
+    out[~valid] = 0
+    return out
+
+
+def default_intrinsics(height: int, width: int) -> np.ndarray:
+    """K (3,3) for an image of unknown camera: the horizontal field of view of the NYU Depth V2 RGB camera
+    (fx = fy = 0.811·W) and the principal point at the image centre ((W−1)/2, (H−1)/2)."""
+    f = NYU_FX_PER_WIDTH * width
+    return np.array([[f, 0.0, (width - 1) / 2.0], [0.0, f, (height - 1) / 2.0], [0.0, 0.0, 1.0]])
+
+
+def intrinsics(height: int, width: int, fx: float | None = None, fy: float | None = None,
+               cx: float | None = None, cy: float | None = None) -> np.ndarray:
+    """K (3,3) in pixels of a (height, width) image: the given values; fy defaults to fx, cx and cy to the
+    image centre; no fx (and no fy) → :func:`default_intrinsics`."""
+    if fx is None and fy is None:
+        K = default_intrinsics(height, width)
+    else:
+        fx = fx if fx is not None else fy
+        fy = fy if fy is not None else fx
+        K = np.array([[fx, 0.0, (width - 1) / 2.0], [0.0, fy, (height - 1) / 2.0], [0.0, 0.0, 1.0]])
+    if cx is not None:
+        K[0, 2] = cx
+    if cy is not None:
+        K[1, 2] = cy
+    if not (K[0, 0] > 0 and K[1, 1] > 0):
+        raise ValueError(f"focal lengths must be positive, got fx={K[0, 0]}, fy={K[1, 1]}")
+    return K
+
+
+def point_cloud(depth: np.ndarray, rgb: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Back-project every pixel with depth > 0: depth (H,W) metres, rgb (H,W,3) uint8, K (3,3) →
+    (points (N,3) float32 metres in the camera frame, colours (N,3) uint8), pixels in row-major order."""
+    d = torch.from_numpy(np.ascontiguousarray(depth, np.float64))[None, None]
+    k_inv = torch.linalg.inv(torch.from_numpy(np.asarray(K, np.float64)))[None]
+    pts = backproject(d, k_inv)[0].permute(1, 2, 0).reshape(-1, 3).numpy()
+    valid = (np.asarray(depth) > 0).reshape(-1)
+    return pts[valid].astype(np.float32), np.asarray(rgb, np.uint8).reshape(-1, 3)[valid]
+
+
+def encode_ply(points: np.ndarray, colours: np.ndarray) -> bytes:
+    """Binary little-endian PLY of coloured points: points (N,3) float, colours (N,3) uint8."""
+    n = len(points)
+    verts = np.empty(n, _PLY_DTYPE)
+    for i, axis in enumerate("xyz"):
+        verts[axis] = points[:, i]
+    for i, channel in enumerate(("red", "green", "blue")):
+        verts[channel] = colours[:, i]
+    header = (
+        "ply\nformat binary_little_endian 1.0\ncomment written by f2depth predict\n"
+        f"element vertex {n}\nproperty float x\nproperty float y\nproperty float z\n"
+        "property uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n"
+    )
+    return header.encode("ascii") + verts.tobytes()
+
+
+def read_ply_points(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
+    """Read a point cloud written by :func:`encode_ply` → (points (N,3) float32, colours (N,3) uint8)."""
+    data = Path(path).read_bytes()
+    end = data.find(b"end_header\n")
+    if not data.startswith(b"ply\n") or end < 0:
+        raise ValueError(f"{path}: not a PLY file")
+    header = data[:end].decode("ascii").splitlines()
+    if "format binary_little_endian 1.0" not in header:
+        raise ValueError(f"{path}: only binary little-endian PLY is read here")
+    n = next(int(line.split()[2]) for line in header if line.startswith("element vertex"))
+    verts = np.frombuffer(data, _PLY_DTYPE, count=n, offset=end + len(b"end_header\n"))
+    points = np.stack([verts[a] for a in "xyz"], axis=1)
+    colours = np.stack([verts[c] for c in ("red", "green", "blue")], axis=1)
+    return points, colours
+
+
+def write_frame(out_dir: str | os.PathLike, name: str, depth: np.ndarray, rgb: np.ndarray,
+                K: np.ndarray | None = None) -> list[Path]:
+    """Write the outputs of one frame (module docstring); the PLY only when ``K`` is given. depth (H,W)
+    metres, rgb (H,W,3) uint8. Returns the paths written."""
+    out = Path(out_dir)
+    depth = np.asarray(depth, np.float32)
+    paths = [out / f"{name}{SUFFIXES[k]}" for k in ("mm", "npy", "color")]
+    imwrite(paths[0], depth_to_mm(depth))
+    save_npy(paths[1], depth)
+    imwrite(paths[2], colorize_depth(depth))
+    if K is not None:
+        paths.append(out / f"{name}{SUFFIXES['ply']}")
+        write_bytes(paths[-1], encode_ply(*point_cloud(depth, rgb, K)))
+    return paths
