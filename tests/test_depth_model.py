@@ -154,3 +154,11 @@ def test_model_load_imagenet(tmp_path):
     m.load_imagenet(tmp_path / "r18.pth")
     assert torch.equal(m.depth_encoder.layer2[0].conv1.weight, ref.layer2[0].conv1.weight)
     assert torch.allclose(m.pose_encoder.conv1.weight[:, 3:], ref.conv1.weight / 2)
+
+
+@pytest.mark.parametrize("content", [b"", b"\x00\x01\x02\x03", b"PK\x03\x04 not a zip"])
+def test_junk_checkpoint_files_give_a_clear_error(tmp_path, content):
+    path = tmp_path / "junk.pt"
+    path.write_bytes(content)
+    with pytest.raises(ValueError, match="junk.pt: not a readable torch checkpoint"):
+        read_checkpoint(path)
