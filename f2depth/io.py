@@ -18,6 +18,15 @@ import cv2
 import numpy as np
 
 
+def _file_mode() -> int:
+    umask = os.umask(0)
+    os.umask(umask)
+    return 0o666 & ~umask
+
+
+_FILE_MODE = _file_mode()
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[Path]:
     """Yield a temporary path next to ``path``; on success rename it onto ``path``.
@@ -31,6 +40,7 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
         prefix=f".{dest.name}.", suffix=suffix if suffix is not None else dest.suffix, dir=dest.parent
     )
     os.close(fd)
+    os.chmod(tmp, _FILE_MODE)  # mkstemp makes 0600 files; give them the mode open() would
     tmp_path = Path(tmp)
     try:
         yield tmp_path
@@ -78,8 +88,18 @@ def save_npy(path: str | os.PathLike, array: np.ndarray) -> None:
 def imwrite(path: str | os.PathLike, image: np.ndarray, params: list[int] | None = None) -> None:
     """``cv2.imwrite`` made atomic; ``image`` is in OpenCV's channel order (BGR)."""
     with atomic_path(path) as tmp:
-        if not cv2.imwrite(str(tmp), image, params or []):
-            raise OSError(f"OpenCV could not write {path} (unsupported extension or dtype {image.dtype})")
+        try:
+            ok = cv2.imwrite(str(tmp), image, params or [])
+        except cv2.error as exc:
+            ok = False
+            detail = str(exc).strip().splitlines()[-1]
+        else:
+            detail = ""
+        if not ok:
+            raise OSError(
+                f"{path}: OpenCV could not write (unsupported extension or dtype {image.dtype}) "
+                f"{detail}".strip()
+            )
 
 
 def torch_save(path: str | os.PathLike, obj: Any) -> None:

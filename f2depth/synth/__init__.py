@@ -1,0 +1,152 @@
+"""The synthetic indoor world: a deterministic generator of indoor video and images in the on-disk formats
+of NYU Depth V2 (raw and labeled), 7-Scenes, Campus and MPI Sintel, with exact ground truth
+(docs/formats.md).
+
+Modules: ``textures`` (procedural albedo), ``styles`` and ``layout`` (rooms and furniture),
+``scene`` (boxes, lights, baked radiance atlas), ``camera_path`` (handheld motion), ``render`` (ray
+casting), ``sensor`` (exposure, vignetting, noise), ``groundtruth`` (flow, occlusion, Kinect holes),
+``writers`` and ``matfiles`` (file formats), ``plan`` and ``jobs`` (what to generate, one job per
+sequence), ``contact_sheet`` (the README figure).
+
+Entry point: :func:`generate`.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import time
+from concurrent.futures import ProcessPoolExecutor, as_completed
+
+import cv2
+import numpy as np
+from tqdm import tqdm
+
+from f2depth.io import write_json, write_text
+from f2depth.synth import jobs as _jobs
+from f2depth.synth import matfiles, plan, writers
+from f2depth.synth.cleanup import remove_previous
+from f2depth.synth.config import OutputPaths, SynthConfig
+
+__all__ = ["OutputPaths", "SynthConfig", "generate"]
+
+MANIFEST_VERSION = 1
+
+
+def _init_worker() -> None:
+    cv2.setNumThreads(1)
+
+
+def _run_all(cfg: SynthConfig, paths: OutputPaths, progress: bool) -> list[dict]:
+    todo = plan.jobs(cfg)
+    total = sum(j.frames for j in todo)
+    results = []
+    bar = tqdm(total=total, desc="synth", unit="frame", disable=not progress)
+    if cfg.workers <= 1:
+        for job in todo:
+            results.append(_jobs.run(job, cfg, paths))
+            bar.update(job.frames)
+    else:
+        ctx = multiprocessing.get_context("spawn")
+        with ProcessPoolExecutor(max_workers=cfg.workers, mp_context=ctx, initializer=_init_worker) as pool:
+            futures = {pool.submit(_jobs.run, job, cfg, paths): job for job in todo}
+            for fut in as_completed(futures):
+                results.append(fut.result())
+                bar.update(futures[fut].frames)
+    bar.close()
+    return results
+
+
+def generate(cfg: SynthConfig, paths: OutputPaths, progress: bool = True) -> dict:
+    """Generate every dataset below ``paths`` and the side-car ground truth; returns the metrics.
+
+    The output is a function of ``cfg`` only (byte-identical for the same settings, whatever the number
+    of workers). What a previous generation wrote is removed first (:mod:`f2depth.synth.cleanup`);
+    other files in the folders are left alone.
+    """
+    t0 = time.perf_counter()
+    removed = remove_previous(paths)
+    results = _run_all(cfg, paths, progress)
+    by_ds: dict[str, list[dict]] = {}
+    for r in results:
+        by_ds.setdefault(r["dataset"], []).append(r)
+
+    # NYU labeled: one .mat from all labeled jobs, in index order, and the split
+    items = sorted((it for r in by_ds.get("nyu_labeled", []) for it in r["labeled"]), key=lambda it: it[0])
+    images = plan.labeled_images(cfg)
+    if [it[0] for it in items] != [im.index for im in images]:
+        raise RuntimeError("labeled images missing from the job results")
+    matfiles.write_nyu_labeled(
+        paths.nyu_labeled,
+        np.stack([it[1] for it in items]),
+        np.stack([it[2] for it in items]),
+        np.stack([it[3] for it in items]),
+        [im.scene for im in images],
+        [im.kind for im in images],
+    )
+    test = [im.index for im in images if im.test]
+    train = [im.index for im in images if not im.test]
+    matfiles.write_splits(paths.nyu_splits, np.array(train), np.array(test))
+
+    # 7-Scenes split files, Campus points
+    for scene, (test_seq, train_seq) in plan.sevenscenes_sequences(cfg).items():
+        write_text(paths.sevenscenes / scene / "TestSplit.txt", "".join(f"sequence{q}\n" for q in test_seq))
+        write_text(paths.sevenscenes / scene / "TrainSplit.txt", "".join(f"sequence{q}\n" for q in train_seq))
+    rows = sorted(p for r in by_ds.get("campus", []) for p in r["points"])
+    write_text(paths.campus / "points.csv", writers.points_csv(rows))
+
+    manifest = _manifest(cfg, by_ds)
+    write_json(paths.synth_gt / "manifest.json", manifest)
+    metrics = _metrics(cfg, by_ds, manifest, time.perf_counter() - t0)
+    metrics["stale_files_removed"] = removed
+    return metrics
+
+
+def _manifest(cfg: SynthConfig, by_ds: dict[str, list[dict]]) -> dict:
+    datasets: dict[str, dict] = {}
+    for ds, rs in sorted(by_ds.items()):
+        scenes: dict[str, int] = {}
+        for r in rs:
+            key = f"{r['room']}/{r['seq']}" if ds == "sevenscenes" else r["room"]
+            scenes[key] = scenes.get(key, 0) + r["frames"]
+        datasets[ds] = {"scenes": dict(sorted(scenes.items())), "frames": sum(scenes.values())}
+    labeled = plan.labeled_images(cfg)
+    datasets.setdefault("nyu_labeled", {})["test_scenes"] = sorted({im.scene for im in labeled if im.test})
+    return {
+        "generator": "f2depth.synth",
+        "version": MANIFEST_VERSION,
+        "params": {k: v for k, v in cfg.to_dict().items() if k != "workers"},  # output does not depend on it
+        "datasets": datasets,
+    }
+
+
+def _metrics(cfg: SynthConfig, by_ds: dict[str, list[dict]], manifest: dict, seconds: float) -> dict:
+    out: dict = {
+        "data_source": "synthetic",
+        "seconds": round(seconds, 2),
+        "workers": cfg.workers,
+        "datasets": {},
+    }
+    for ds, rs in sorted(by_ds.items()):
+        m = {
+            "scenes": len(manifest["datasets"][ds]["scenes"]),
+            "frames": sum(r["frames"] for r in rs),
+            "mean_depth_m": round(
+                sum(r["depth_sum"] for r in rs) / max(1, sum(r["depth_count"] for r in rs)), 4
+            ),
+            "worker_seconds": round(sum(r["seconds"] for r in rs), 2),
+        }
+        flow_n = sum(r.get("flow_count", 0) for r in rs)
+        if flow_n:
+            m["mean_flow_px"] = round(sum(r["flow_abs_sum"] for r in rs) / flow_n, 4)
+            m["occluded_fraction"] = round(sum(r["occluded_sum"] for r in rs) / flow_n, 5)
+            speeds = np.concatenate([np.asarray(r["speeds"]) * r["fps"] for r in rs])
+            m["camera_speed_m_s"] = {
+                "mean": round(float(speeds.mean()), 4),
+                "min": round(float(speeds.min()), 4),
+                "max": round(float(speeds.max()), 4),
+            }
+        if ds == "campus":
+            m["points"] = sum(len(r["points"]) for r in rs)
+        out["datasets"][ds] = m
+    out["frames"] = sum(m["frames"] for m in out["datasets"].values())
+    return out

@@ -1,0 +1,47 @@
+"""DVC stage `synth`: generate the embedded synthetic datasets below ``synth.root``.
+
+Params: synth, data_source.
+
+Usage: python stages/synth.py [params.yaml]
+The generated sets use the standard layout below ``synth.root`` (data/raw), which the default ``data.*``
+paths point at. With ``data_source: real`` nothing is generated (the root only gets a README saying so):
+point the ``data.*`` paths at your copies, which this stage never writes or deletes.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from f2depth import params as P
+from f2depth.io import write_json, write_text
+from f2depth.synth import OutputPaths, SynthConfig, generate
+
+METRICS = Path("metrics/synth.json")
+
+
+def main(argv: list[str]) -> int:
+    params = P.load(argv[1] if len(argv) > 1 else P.DEFAULT_PARAMS)
+    source = params["_file"]
+    data_source = P.get(params, "data_source")
+    root = Path(P.get(params, "synth.root"))
+    if data_source == "real":
+        note = "data_source is 'real': nothing generated here; see params.yaml data.*\n"
+        write_text(root / "README.txt", note)
+        write_text(root / "synth_gt" / "README.txt", note)
+        write_json(METRICS, {"data_source": "real", "generated": False, "frames": 0})
+        print("synth: data_source is 'real', nothing generated")
+        return 0
+    if data_source != "synthetic":
+        raise P.ParamsError(f"{source}: data_source must be 'synthetic' or 'real', got {data_source!r}")
+    cfg = SynthConfig.from_params(P.get(params, "synth"), source)
+    paths = OutputPaths.under(root)
+    metrics = generate(cfg, paths)
+    metrics["generated"] = True
+    write_json(METRICS, metrics)
+    print(f"synth: {metrics['frames']} frames in {metrics['seconds']:.1f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv))
