@@ -1,0 +1,169 @@
+"""P²Net's training augmentation in plain torch (research/p2net.md §2): horizontal flip and colour jitter.
+
+* Flip (p = 0.5): every frame of a sample, the superpixel labels and the keypoints are mirrored
+  (x → W−1−x) and so is the principal point, ``cx' = W−1−cx`` (pixel centres at integers). P²Net and
+  Monodepth2 leave K unchanged on a flip, which is only right when cx = (W−1)/2; we mirror it so the
+  mirrored frames are an exact pinhole view of the mirrored world.
+* Colour jitter (p = 0.5): brightness, contrast, saturation factors in (0.8, 1.2) and a hue shift in
+  (−0.1, 0.1) turns, applied in a random order (as torchvision's ``ColorJitter``), one draw for all the
+  frames of a sample. Definitions as torchvision's functional ops: brightness ``f·x``; contrast
+  ``f·x + (1−f)·mean(gray(x))``; saturation ``f·x + (1−f)·gray(x)`` with ITU-R 601 luma weights; hue: a
+  rotation of the HSV hue; each step clamped to [0, 1].
+
+Every random number comes from a ``torch.Generator`` the caller seeds, so a sample's augmentation is a
+function of that seed alone.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+LUMA = (0.299, 0.587, 0.114)
+JITTER_OPS = ("brightness", "contrast", "saturation", "hue")
+
+
+@dataclass(frozen=True)
+class AugmentConfig:
+    """Probabilities and ranges (P²Net's values by default)."""
+
+    flip_p: float = 0.5
+    jitter_p: float = 0.5
+    brightness: tuple[float, float] = (0.8, 1.2)
+    contrast: tuple[float, float] = (0.8, 1.2)
+    saturation: tuple[float, float] = (0.8, 1.2)
+    hue: tuple[float, float] = (-0.1, 0.1)
+
+
+@dataclass(frozen=True)
+class AugmentDraw:
+    """One sample's random choices. ``order``: indices into JITTER_OPS, the order of application."""
+
+    flip: bool
+    jitter: bool
+    brightness: float
+    contrast: float
+    saturation: float
+    hue: float
+    order: tuple[int, ...]
+
+
+def draw(config: AugmentConfig, generator: torch.Generator) -> AugmentDraw:
+    """Draw a sample's augmentation. Always consumes the same amount of the stream (9 numbers + a
+    permutation), whatever the outcome."""
+    u = torch.rand(2, generator=generator, dtype=torch.float64)
+
+    def uniform(lo_hi: tuple[float, float]) -> float:
+        lo, hi = lo_hi
+        return float(lo + (hi - lo) * torch.rand(1, generator=generator, dtype=torch.float64))
+
+    b, c, s, h = (uniform(config.brightness), uniform(config.contrast), uniform(config.saturation),
+                  uniform(config.hue))
+    order = tuple(int(i) for i in torch.randperm(4, generator=generator))
+    return AugmentDraw(bool(u[0] < config.flip_p), bool(u[1] < config.jitter_p), b, c, s, h, order)
+
+
+# ---- flip ------------------------------------------------------------------------------------------
+
+def flip_image(img: torch.Tensor) -> torch.Tensor:
+    """Mirror left-right: (..., H, W) → (..., H, W)."""
+    return torch.flip(img, dims=(-1,))
+
+
+def flip_points(points: torch.Tensor, width: int) -> torch.Tensor:
+    """Keypoints (N, ≥2) x first (integer or float pixels) → x' = W−1−x, other columns unchanged."""
+    out = points.clone()
+    out[:, 0] = (width - 1) - out[:, 0]
+    return out
+
+
+def flip_intrinsics(K: torch.Tensor, width: int) -> torch.Tensor:
+    """K (3,3) of the mirrored image: cx' = W−1−cx (fx, fy, cy unchanged; zero skew assumed)."""
+    if float(K[0, 1]) != 0.0:
+        raise ValueError("flip_intrinsics: K has a skew term; a mirrored camera would need K[0,1] → −K[0,1]")
+    out = K.clone()
+    out[0, 2] = (width - 1) - K[0, 2]
+    return out
+
+
+# ---- colour ----------------------------------------------------------------------------------------
+
+def grayscale(img: torch.Tensor) -> torch.Tensor:
+    """RGB (..., 3, H, W) in [0, 1] → luma (..., 1, H, W)."""
+    r, g, b = img.unbind(dim=-3)
+    return (LUMA[0] * r + LUMA[1] * g + LUMA[2] * b).unsqueeze(-3)
+
+
+def _blend(img: torch.Tensor, other: torch.Tensor, factor: float) -> torch.Tensor:
+    return (factor * img + (1.0 - factor) * other).clamp(0.0, 1.0)
+
+
+def adjust_brightness(img: torch.Tensor, factor: float) -> torch.Tensor:
+    return (img * factor).clamp(0.0, 1.0)
+
+
+def adjust_contrast(img: torch.Tensor, factor: float) -> torch.Tensor:
+    mean = grayscale(img).mean(dim=(-3, -2, -1), keepdim=True)
+    return _blend(img, mean, factor)
+
+
+def adjust_saturation(img: torch.Tensor, factor: float) -> torch.Tensor:
+    return _blend(img, grayscale(img), factor)
+
+
+def rgb_to_hsv(img: torch.Tensor) -> torch.Tensor:
+    """(..., 3, H, W) RGB in [0, 1] → HSV with hue in [0, 1) turns, saturation and value in [0, 1]."""
+    r, g, b = img.unbind(dim=-3)
+    value = img.amax(dim=-3)
+    chroma = value - img.amin(dim=-3)
+    grey = chroma == 0
+    safe_c = torch.where(grey, torch.ones_like(chroma), chroma)
+    sat = torch.where(value > 0, chroma / torch.where(value > 0, value, torch.ones_like(value)),
+                      torch.zeros_like(value))
+    # hue sector by which channel is the maximum (red wins ties, then green), in units of 60°
+    h_r = ((g - b) / safe_c) % 6.0
+    h_g = (b - r) / safe_c + 2.0
+    h_b = (r - g) / safe_c + 4.0
+    hue = torch.where(value == r, h_r, torch.where(value == g, h_g, h_b))
+    hue = torch.where(grey, torch.zeros_like(hue), hue) / 6.0
+    return torch.stack((hue % 1.0, sat, value), dim=-3)
+
+
+def hsv_to_rgb(hsv: torch.Tensor) -> torch.Tensor:
+    """Inverse of ``rgb_to_hsv``: (..., 3, H, W) → RGB in [0, 1]."""
+    hue, sat, value = hsv.unbind(dim=-3)
+
+    def channel(n: float) -> torch.Tensor:
+        k = (n + hue * 6.0) % 6.0
+        ramp = torch.clamp(torch.minimum(k, 4.0 - k), 0.0, 1.0)
+        return value - value * sat * ramp
+
+    return torch.stack((channel(5.0), channel(3.0), channel(1.0)), dim=-3).clamp(0.0, 1.0)
+
+
+def adjust_hue(img: torch.Tensor, shift: float) -> torch.Tensor:
+    """Rotate the hue by ``shift`` turns (in [−0.5, 0.5])."""
+    if shift == 0.0:
+        return img
+    hsv = rgb_to_hsv(img)
+    hsv = torch.stack(((hsv[..., 0, :, :] + shift) % 1.0, hsv[..., 1, :, :], hsv[..., 2, :, :]), dim=-3)
+    return hsv_to_rgb(hsv)
+
+
+def color_jitter(img: torch.Tensor, d: AugmentDraw) -> torch.Tensor:
+    """Apply the drawn jitter (if ``d.jitter``) to RGB (..., 3, H, W) in [0, 1]; contrast uses each
+    image's own mean (leading dimensions are separate images)."""
+    if not d.jitter:
+        return img
+    for op in d.order:
+        name = JITTER_OPS[op]
+        if name == "brightness":
+            img = adjust_brightness(img, d.brightness)
+        elif name == "contrast":
+            img = adjust_contrast(img, d.contrast)
+        elif name == "saturation":
+            img = adjust_saturation(img, d.saturation)
+        else:
+            img = adjust_hue(img, d.hue)
+    return img

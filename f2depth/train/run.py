@@ -1,0 +1,159 @@
+"""Train one variant over its seeds: build data, flow teacher, validator and model, call ``loop.fit``, write
+the models, the history and the metrics (rank 0 only).
+
+Outputs (``out_dir`` = ``models/depth_<variant>``): ``seed<k>.pt`` per seed (``f2depth.depth``
+checkpoints) and ``model.pt``, the **first listed seed's** model (a hard link, or a copy) — the model
+the ``evaluate`` stage uses for single-model results, unchanged when seeds are appended to the list.
+``history_file``: the first seed's per-epoch rows (DVC plots); every seed's rows go to its own MLflow
+run. Resume states live in ``<checkpoint_dir>/<variant>/seed<k>.pt``; they are deleted when every seed of
+the variant has finished, so a run killed during a later seed does not retrain the earlier ones.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import shutil
+import time
+from pathlib import Path
+from typing import Any
+
+from f2depth import tracking
+from f2depth.data.prepared import PreparedSet
+from f2depth.depth import DepthModel, DepthModelConfig, save_checkpoint
+from f2depth.io import atomic_path, write_json
+from f2depth.train import checkpoint as ckpt
+from f2depth.train.data import DataConfig, TupleDataset
+from f2depth.train.distributed import DistContext, barrier
+from f2depth.train.loop import FitResult, LoopConfig, fit, seed_everything, write_history
+from f2depth.train.schedule import LRSchedule
+from f2depth.train.settings import TrainSettings
+from f2depth.train.step import StepConfig, scaled_min_area
+from f2depth.train.teacher import FlowTeacher
+from f2depth.train.validate import make_validator
+
+log = logging.getLogger(__name__)
+
+
+def run_fingerprint(s: TrainSettings, seed: int) -> str:
+    """What a resumable state must match: the settings that shape training and the input files."""
+    ignored = ("seeds", "workers", "checkpoint_dir", "device")
+    settings = {k: v for k, v in s.as_dict().items() if k not in ignored}
+    settings["seed"] = seed
+    files = {"tuples": Path(s.prepared) / "tuples.csv", "camera": Path(s.prepared) / "camera.json",
+             "keypoints": s.keypoints_file, "flow_model": s.flow_model, "imagenet": s.imagenet_weights}
+    return ckpt.fingerprint(settings, files)
+
+
+def _summary(result: FitResult) -> dict[str, Any]:
+    hist = result.history
+    first = next((r for r in hist if r["epoch"] == 0), {})
+    last = hist[-1] if hist else {}
+    losses = {k: v for k, v in last.items() if k not in ("epoch", "lr", "seconds", "val_seconds")
+              and not k.startswith("val_")}
+    return {
+        "val_untrained": {"abs_rel": first.get("val_abs_rel"), "a1": first.get("val_a1")},
+        "val_trained": {"abs_rel": last.get("val_abs_rel"), "a1": last.get("val_a1")},
+        "final_losses": losses,
+        "seconds": round(sum(r.get("seconds", 0.0) + r.get("val_seconds", 0.0) for r in hist), 2),
+        "seconds_per_epoch": round(sum(r.get("seconds", 0.0) for r in hist if r["epoch"] > 0)
+                                   / max(1, sum(1 for r in hist if r["epoch"] > 0)), 3),
+        "resumed_from_epoch": result.resumed_from,
+    }
+
+
+def train_variant(
+    s: TrainSettings,
+    out_dir: str | Path,
+    metrics_file: str | Path,
+    history_file: str | Path,
+    ctx: DistContext | None = None,
+    params: dict[str, Any] | None = None,
+    resume: bool = True,
+    progress: bool = True,
+) -> dict[str, Any]:
+    """Train every seed of ``s`` and write the outputs (module docstring); returns the metrics dict."""
+    ctx = ctx or DistContext()
+    t0 = time.perf_counter()
+    prepared = PreparedSet(s.prepared)
+    h, w = prepared.hw
+    dataset = TupleDataset(prepared, s.keypoints_file, DataConfig(num_points=s.num_points, augment=s.augment))
+    teacher = FlowTeacher.load(s.flow_model, ctx.device) if s.flow_model else None
+    validator = make_validator(s.nyu_labeled, s.nyu_splits, h, w, ctx.device, gt=s.val_gt, crop=s.val_crop,
+                               max_images=s.val_max_images) if ctx.is_main else None
+    step_config = StepConfig(weights=s.weights, min_area=scaled_min_area(h, w), amp=ctx.device.type == "cuda")
+    schedule = LRSchedule.scaled(s.lr, s.lr_epochs, s.epochs)
+    out_dir = Path(out_dir)
+    if ctx.is_main:
+        log.info("train_depth[%s]: %d tuples at %dx%d, batch %d, %d epochs (lr phases %s), flow model %s, "
+                 "weights %s, %s", s.variant, len(dataset), h, w, s.batch_size, s.epochs,
+                 list(schedule.phases), s.flow_model or "none (P²Net baseline)", s.weights,
+                 f"ImageNet init from {s.imagenet_weights}" if s.imagenet_weights else "random init")
+        if out_dir.exists():
+            shutil.rmtree(out_dir)  # stale seeds of an earlier run must not survive
+        out_dir.mkdir(parents=True)
+    per_seed: list[dict[str, Any]] = []
+    main_history: list[dict[str, Any]] = []
+    for seed in s.seeds:
+        dataset.seed = seed
+        seed_everything(seed)
+        model = DepthModel(DepthModelConfig(height=h, width=w))
+        if s.imagenet_weights:
+            model.load_imagenet(s.imagenet_weights)
+        state_file = Path(s.checkpoint_dir) / s.variant / f"seed{seed}.pt"
+        run_ctx = (tracking.stage_run("train_depth", params or {}, variant=s.variant)
+                   if ctx.is_main else contextlib.nullcontext(tracking.StageRun()))
+        with run_ctx as run:
+            run.set_tags({"seed": seed})
+            run.log_params({"effective": {**weights_dict(s), "flow_model": s.flow_model, "seed": seed,
+                                          "lambda_sources": s.lambda_sources}})
+            result = fit(
+                model, dataset, teacher, step_config,
+                LoopConfig(s.epochs, s.batch_size, schedule, seed=seed, workers=s.workers, sync_bn=s.sync_bn,
+                           progress=progress),
+                ctx=ctx, checkpoint=state_file, resume=resume, fingerprint=run_fingerprint(s, seed),
+                validate=validator,
+                on_epoch=lambda row, run=run: run.log_metrics(
+                    {k: v for k, v in row.items() if k != "epoch" and v is not None}, step=int(row["epoch"])),
+            )  # fmt: skip
+            summary = {"seed": seed, **_summary(result)}
+            if ctx.is_main:
+                if result.resumed_from:
+                    log.info("seed %d: resumed after epoch %d (%s)", seed, result.resumed_from, state_file)
+                save_checkpoint(out_dir / f"seed{seed}.pt", model, params=s.as_dict(), variant=s.variant,
+                                seed=seed, history=result.history)
+                run.log_metrics({f"final_{k}": v for k, v in summary["final_losses"].items()})
+        per_seed.append(summary)
+        if seed == s.seeds[0]:
+            main_history = result.history
+        barrier(ctx)
+    metrics = {
+        "variant": s.variant, "flow_model": s.flow_model, "weights": weights_dict(s),
+        "lambda_sources": s.lambda_sources, "epochs": s.epochs, "batch_size": s.batch_size,
+        "lr_phases": list(schedule.phases), "train_tuples": len(dataset),
+        "steps_per_epoch": len(dataset) // s.batch_size, "seeds": list(s.seeds), "main_seed": s.seeds[0],
+        **{k: v for k, v in per_seed[0].items() if k != "seed"},
+        "per_seed": per_seed, "wall_seconds": round(time.perf_counter() - t0, 2),
+    }  # fmt: skip
+    if ctx.is_main:
+        for seed in s.seeds:
+            (Path(s.checkpoint_dir) / s.variant / f"seed{seed}.pt").unlink(missing_ok=True)
+        with atomic_path(out_dir / "model.pt") as tmp:  # a hard link where possible: no second copy
+            tmp.unlink()
+            try:
+                os.link(out_dir / f"seed{s.seeds[0]}.pt", tmp)
+            except OSError:
+                shutil.copyfile(out_dir / f"seed{s.seeds[0]}.pt", tmp)
+        write_history(history_file, main_history)
+        write_json(metrics_file, metrics)
+        if validator is not None:
+            validator.close()
+    barrier(ctx)
+    return metrics
+
+
+def weights_dict(s: TrainSettings) -> dict[str, float]:
+    w = s.weights
+    return {"lambda1": w.lambda1, "lambda2": w.lambda2, "lambda_rigid": w.lambda_rigid, "lambda3": w.lambda3}
+

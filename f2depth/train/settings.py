@@ -1,0 +1,127 @@
+"""Everything one ``train_depth`` variant needs, resolved from params.yaml into a frozen dataclass.
+
+Variants (params ``variants.<name>``, SPEC §1): ``flow_model`` (path of the frozen flow network, or null
+for the P²Net baseline without flow losses), ``rigid_from`` / ``feature_from`` (the YAML file that
+``lambda_rigid`` / ``lambda3`` are read from: ``params.yaml`` for the user's value, or
+``configs/ablation_off.yaml`` (both 0) to switch the term off), and ``dep_flow_model`` / ``dep_flow_code``
+(what DVC tracks for the variant, see dvc.yaml). The name ``params.yaml`` in ``*_from`` means the
+parameter file in use (``--params``), so a copied parameter file behaves like the original.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from f2depth import params as P
+from f2depth.losses import LossWeights
+
+PARAMS_NAME = "params.yaml"
+
+
+@dataclass(frozen=True)
+class TrainSettings:
+    variant: str
+    prepared: str
+    keypoints_file: str
+    nyu_labeled: str
+    nyu_splits: str
+    flow_model: str | None
+    weights: LossWeights
+    lambda_sources: dict[str, str]
+    epochs: int
+    batch_size: int
+    lr: tuple[float, ...]
+    lr_epochs: tuple[int, ...]
+    num_points: int
+    augment: bool
+    seeds: tuple[int, ...]
+    workers: int = 0
+    imagenet_weights: str | None = None
+    val_gt: str = "depths"
+    val_crop: str = "eigen"
+    val_max_images: int | None = 20
+    sync_bn: bool = True
+    device: str = "auto"
+    checkpoint_dir: str = "tmp/train_depth"
+
+    def as_dict(self) -> dict[str, Any]:
+        d = dataclasses.asdict(self)
+        d["lr"], d["lr_epochs"], d["seeds"] = list(self.lr), list(self.lr_epochs), list(self.seeds)
+        return d
+
+
+def _lambda_from(params: dict[str, Any], params_path: str, source: str, key: str, variant: str) -> float:
+    if not isinstance(source, str) or not source:
+        raise P.ParamsError(f"{params_path}: variants.{variant}: give the file {key} is read from "
+                            f"(params.yaml or configs/ablation_off.yaml)")
+    if Path(source).name == PARAMS_NAME and Path(source).parent == Path("."):
+        return float(P.get(params, key))
+    path = Path(source)
+    if not path.is_file():
+        raise P.ParamsError(f"{params_path}: variants.{variant} reads {key} from {path}, "
+                            "which does not exist")
+    data = yaml.safe_load(path.read_text()) or {}
+    if not isinstance(data, dict) or key not in data:
+        raise P.ParamsError(f"{path}: no '{key}' (variants.{variant} reads it from this file)")
+    return float(data[key])
+
+
+def settings_from_params(params: dict[str, Any], variant: str) -> TrainSettings:
+    """Resolve ``variant`` from a loaded params dict (``f2depth.params.load``); errors name the key."""
+    path = params.get("_file", PARAMS_NAME)
+    variants = P.get(params, "variants")
+    if variant not in variants:
+        raise P.ParamsError(f"{path}: unknown variant '{variant}'; variants: {sorted(variants)}")
+    v = variants[variant] or {}
+    flow_model = v.get("flow_model")
+    dep = v.get("dep_flow_model")
+    if flow_model is not None and dep != flow_model:
+        raise P.ParamsError(f"{path}: variants.{variant}.dep_flow_model is {dep!r} but flow_model is "
+                            f"{flow_model!r}; they must name the same file so DVC tracks the model used")
+    rigid_from, feature_from = v.get("rigid_from"), v.get("feature_from")
+    weights = LossWeights(
+        lambda1=float(P.get(params, "lambda1")),
+        lambda2=float(P.get(params, "lambda2")),
+        lambda3=_lambda_from(params, path, feature_from, "lambda3", variant),
+        lambda_rigid=_lambda_from(params, path, rigid_from, "lambda_rigid", variant),
+    )
+    if flow_model is None and (weights.lambda3 != 0 or weights.lambda_rigid != 0):
+        raise P.ParamsError(f"{path}: variants.{variant} has no flow_model but lambda_rigid="
+                            f"{weights.lambda_rigid}, lambda3={weights.lambda3}; read both from "
+                            "configs/ablation_off.yaml or give a flow model")
+    td = P.get(params, "train_depth")
+    seeds = td.get("seeds", [0])
+    seeds = tuple(int(s) for s in (seeds if isinstance(seeds, list) else [seeds]))
+    if not seeds or len(set(seeds)) != len(seeds):
+        raise P.ParamsError(f"{path}: train_depth.seeds must be a non-empty list of distinct integers")
+    val_max = td.get("val_max_images", 20)
+    return TrainSettings(
+        variant=variant,
+        prepared=str(P.get(params, "data.prepared")),
+        keypoints_file=str(Path(P.get(params, "data.keypoints")) / "train.npz"),
+        nyu_labeled=str(P.get(params, "data.nyu_labeled")),
+        nyu_splits=str(P.get(params, "data.nyu_splits")),
+        flow_model=str(flow_model) if flow_model is not None else None,
+        weights=weights,
+        lambda_sources={"lambda_rigid": str(rigid_from), "lambda3": str(feature_from)},
+        epochs=int(P.get(params, "train_depth.epochs")),
+        batch_size=int(P.get(params, "train_depth.batch_size")),
+        lr=tuple(float(x) for x in P.get(params, "train_depth.lr")),
+        lr_epochs=tuple(int(x) for x in P.get(params, "train_depth.lr_epochs")),
+        num_points=int(P.get(params, "train_depth.num_points")),
+        augment=bool(P.get(params, "train_depth.augment")),
+        seeds=seeds,
+        workers=int(td.get("workers", 0)),
+        imagenet_weights=td.get("imagenet_weights"),
+        val_gt=str(P.get(params, "evaluate.nyu_gt", "depths")),
+        val_crop=str(P.get(params, "evaluate.nyu_crop", "eigen")),
+        val_max_images=None if val_max is None else int(val_max),
+        sync_bn=bool(td.get("sync_bn", True)),
+        device=str(params.get("device", "auto")),
+        checkpoint_dir=str(td.get("checkpoint_dir", "tmp/train_depth")),
+    )

@@ -1,0 +1,178 @@
+"""One depth-training step as functions: networks → frozen flow network → loss terms → total → update.
+
+Conventions (Monodepth2 / P²Net, ``f2depth.depth.model``): the pose network sees ``[I−1, I0]`` and
+``[I0, I+1]`` (colour-augmented); the source-from-target transforms used for warping are
+``T−1 = −1_T_0 = predict_pose(I−1, I0, invert=True)`` and ``T+1 = 1_T_0 = predict_pose(I0, I+1)``.
+
+Terms (SPEC §4.4), all on the un-augmented frames:
+  ph      P²Net's patch photometric loss, minimum over the two sources;
+  sm      edge-aware smoothness of the mean-normalised sigmoid disparity;
+  spp     planar loss over superpixels larger than P²Net's 1000 px at 288×384, scaled by image area;
+  rigid   mean |f_rigid − f_flow| for target → +1 (``f_rigid = rigid_flow(depth, K, T+1)``);
+  feature multi-scale feature synthesis with the frozen network's pyramids, warped by ``f_rigid``.
+rigid and feature need a flow teacher; without one (P²Net baseline) they are left out. A term whose
+weight is 0 but that can be computed (e.g. feature for ``no_feature``) is computed without gradients,
+for the logs only. The sum and the NaN/inf guard are ``f2depth.losses.total_loss``.
+
+Mixed precision: with ``amp`` the networks run under ``torch.autocast`` (CUDA float16); the geometry and
+every loss run in float32 with autocast off.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from contextlib import nullcontext
+from dataclasses import dataclass
+
+import torch
+from torch import nn
+
+from f2depth.geometry import rigid_flow
+from f2depth.losses import (
+    LossWeights,
+    NonFiniteLossError,
+    edge_aware_smoothness,
+    feature_synthesis_loss,
+    patch_photometric_loss,
+    planar_loss,
+    rigid_flow_loss,
+    total_loss,
+)
+from f2depth.train.teacher import FlowTeacher, TeacherOutput
+
+#: P²Net's superpixel size threshold (pixels at 288×384).
+P2NET_MIN_AREA = 1000
+P2NET_HW = (288, 384)
+
+
+def scaled_min_area(height: int, width: int) -> float:
+    """P²Net's 1000 px at 288×384 scaled by image area (111 px at 96×128), as ``prepare`` reports it."""
+    return P2NET_MIN_AREA * height * width / (P2NET_HW[0] * P2NET_HW[1])
+
+
+@dataclass(frozen=True)
+class StepConfig:
+    weights: LossWeights
+    min_area: float  # superpixels of more pixels take part in L_spp
+    min_depth: float = 0.1
+    max_depth: float = 10.0
+    amp: bool = False  # autocast the networks (CUDA only)
+
+
+@dataclass
+class NetOutput:
+    """disp (B,1,H,W) sigmoid output, depth (B,1,H,W) metres, T_prev / T_next (B,4,4) src_T_tgt; float32."""
+
+    disp: torch.Tensor
+    depth: torch.Tensor
+    T_prev: torch.Tensor
+    T_next: torch.Tensor
+
+
+def batch_to(batch: dict[str, torch.Tensor], device: torch.device | str) -> dict[str, torch.Tensor]:
+    non_blocking = torch.device(device).type == "cuda"
+    return {k: v.to(device, non_blocking=non_blocking) for k, v in batch.items()}
+
+
+def _autocast(device: torch.device, enabled: bool):
+    return torch.autocast(device_type=device.type, dtype=torch.float16) if enabled else nullcontext()
+
+
+def network_forward(model: nn.Module, batch: dict[str, torch.Tensor], amp: bool = False) -> NetOutput:
+    """Depth of the target and the two source poses, through ``model.forward`` (so DDP sees one call).
+
+    ``model`` is a DepthModel or its DDP wrapper; the depth is recomputed from the float32 disparity.
+    """
+    core = model.module if hasattr(model, "module") else model
+    device = batch["target_aug"].device
+    pairs = [(batch["prev_aug"], batch["target_aug"], True), (batch["target_aug"], batch["next_aug"], False)]
+    with _autocast(device, amp):
+        disp, _, poses = model(batch["target_aug"], pairs)
+    disp = disp.float()
+    return NetOutput(disp, core.disp_to_depth(disp), poses[0].float(), poses[1].float())
+
+
+def teacher_forward(teacher: FlowTeacher | None, batch: dict[str, torch.Tensor], features: bool,
+                    amp: bool = False) -> TeacherOutput | None:
+    """The frozen network's flow target → +1 (and pyramids) on the un-augmented frames, or None."""
+    if teacher is None:
+        return None
+    with _autocast(batch["target"].device, amp):
+        return teacher(batch["target"], batch["next"], features=features)
+
+
+def loss_terms(net: NetOutput, batch: dict[str, torch.Tensor], flow: TeacherOutput | None,
+               config: StepConfig) -> dict[str, torch.Tensor]:
+    """The scalar loss terms (float32, autocast off); see the module docstring."""
+    w = config.weights
+    device = net.depth.device
+    ctx = torch.autocast(device_type=device.type, enabled=False) if config.amp else nullcontext()
+    with ctx:
+        target, K = batch["target"].float(), batch["K"].float()
+        terms = {
+            "ph": patch_photometric_loss(target, [batch["prev"].float(), batch["next"].float()], net.depth, K,
+                                         [net.T_prev, net.T_next], batch["points"]),
+            "sm": edge_aware_smoothness(net.disp, target),
+            "spp": planar_loss(net.depth, torch.linalg.inv(K), batch["segments"], min_area=config.min_area,
+                               min_depth=config.min_depth, max_depth=config.max_depth),
+        }
+        if flow is None:
+            return terms
+        grad = torch.is_grad_enabled()
+        with torch.set_grad_enabled(grad and (w.lambda_rigid != 0 or w.lambda3 != 0)):
+            f_rigid = rigid_flow(net.depth, K, net.T_next)
+        with torch.set_grad_enabled(grad and w.lambda_rigid != 0):
+            terms["rigid"] = rigid_flow_loss(f_rigid, flow.flow)
+        if flow.feats_tgt:
+            with torch.set_grad_enabled(grad and w.lambda3 != 0):
+                terms["feature"] = feature_synthesis_loss(flow.feats_tgt, flow.feats_src, f_rigid)
+    return terms
+
+
+def compute_loss(model: nn.Module, batch: dict[str, torch.Tensor], teacher: FlowTeacher | None,
+                 config: StepConfig, context: str = "") -> tuple[torch.Tensor, dict[str, float]]:
+    """Forward everything for one batch → (L_depth, {term: float, "total": float}).
+
+    Raises ``NonFiniteLossError`` naming the first NaN/inf term. Pyramid features are computed when a
+    teacher is given (L_feature is logged even with λ3 = 0).
+    """
+    net = network_forward(model, batch, config.amp)
+    flow = teacher_forward(teacher, batch, features=True, amp=config.amp)
+    return total_loss(loss_terms(net, batch, flow, config), config.weights, context)
+
+
+def train_step(
+    model: nn.Module,
+    optimizer: torch.optim.Optimizer,
+    batch: dict[str, torch.Tensor],
+    teacher: FlowTeacher | None,
+    config: StepConfig,
+    scaler: torch.amp.GradScaler | None = None,
+    context: str = "",
+    agree: Callable[[NonFiniteLossError | None], None] | None = None,
+) -> tuple[torch.Tensor, dict[str, float]]:
+    """One optimisation step on ``batch`` (already on the device) → (detached loss, logs).
+
+    agree: called with the local NaN/inf error (or None) before backward; under DDP it raises the same
+    error on every rank when any rank failed (``distributed.agree_finite``), so no rank is left waiting in
+    an all-reduce. Without it a local error is raised directly.
+    """
+    optimizer.zero_grad(set_to_none=True)
+    error: NonFiniteLossError | None = None
+    loss = logs = None
+    try:
+        loss, logs = compute_loss(model, batch, teacher, config, context)
+    except NonFiniteLossError as exc:
+        error = exc
+    if agree is not None:
+        agree(error)
+    if error is not None:
+        raise error
+    if scaler is not None and scaler.is_enabled():
+        scaler.scale(loss).backward()
+        scaler.step(optimizer)
+        scaler.update()
+    else:
+        loss.backward()
+        optimizer.step()
+    return loss.detach(), logs

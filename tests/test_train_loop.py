@@ -1,0 +1,120 @@
+"""Tests for f2depth.train.loop and f2depth.train.checkpoint: resume = uninterrupted, NaN guard, history."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+import train_fakes
+
+from f2depth.depth import DepthModel, DepthModelConfig
+from f2depth.flow import PWCLite
+from f2depth.losses import LossWeights, NonFiniteLossError
+from f2depth.train import checkpoint as ckpt
+from f2depth.train.data import DataConfig, TupleDataset
+from f2depth.train.loop import HISTORY_COLUMNS, LoopConfig, fit, history_csv, seed_everything
+from f2depth.train.schedule import LRSchedule
+from f2depth.train.step import StepConfig
+from f2depth.train.teacher import FlowTeacher
+
+EPOCHS = 2
+CONFIG = LoopConfig(EPOCHS, 2, LRSchedule.scaled([1e-4, 1e-5, 1e-6], [27, 15, 2], EPOCHS), seed=7,
+                    progress=False)
+STEP = StepConfig(LossWeights(lambda3=0.0, lambda_rigid=0.0), min_area=40)
+
+
+class Killed(Exception):
+    """Stands in for the process being killed right after a checkpoint."""
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory):
+    root = tmp_path_factory.mktemp("loop")
+    prep = train_fakes.write_prepared(root / "prepared", hw=(64, 64), scenes=1, frames=6)
+    return TupleDataset(prep, root / "keypoints" / "train.npz", DataConfig(num_points=30), seed=7)
+
+
+def fake_validate(model):
+    return {"val_abs_rel": 0.5, "val_a1": 0.25}
+
+
+def new_model() -> DepthModel:
+    seed_everything(7)
+    return DepthModel(DepthModelConfig(64, 64))
+
+
+def test_resumed_run_ends_with_the_same_weights(dataset, tmp_path):
+    torch.set_num_threads(1)
+    ref = new_model()
+    full = fit(ref, dataset, None, STEP, CONFIG, checkpoint=tmp_path / "a.pt", fingerprint="run",
+               validate=fake_validate)
+    assert [r["epoch"] for r in full.history] == [0, 1, 2] and full.resumed_from == 0
+    assert [r["lr"] for r in full.history[1:]] == [1e-4, 1e-5]
+
+    def kill_after_first(row):
+        if row["epoch"] == 1:
+            raise Killed
+
+    with pytest.raises(Killed):
+        fit(new_model(), dataset, None, STEP, CONFIG, checkpoint=tmp_path / "b.pt", fingerprint="run",
+            validate=fake_validate, on_epoch=kill_after_first)
+    state, _ = ckpt.load_state(tmp_path / "b.pt", "run")
+    assert state["epoch"] == 1 and state["sampler"] == {"seed": 7, "epoch": 1}
+    torch.manual_seed(12345)  # a new process: global RNG state differs until the checkpoint restores it
+    replayed = []
+    resumed_model = new_model()
+    resumed = fit(resumed_model, dataset, None, STEP, CONFIG, checkpoint=tmp_path / "b.pt", fingerprint="run",
+                  validate=fake_validate, on_epoch=replayed.append)
+    assert resumed.resumed_from == 1
+    assert [r["epoch"] for r in replayed] == [0, 1, 2]  # history replayed to the new logger, then epoch 2
+    for (k, a), (k2, b) in zip(ref.state_dict().items(), resumed_model.state_dict().items()):
+        assert k == k2 and torch.equal(a, b), k
+    for a, b in zip(full.history, resumed.history):
+        def timeless(row):
+            return {k: v for k, v in row.items() if "seconds" not in k}
+
+        assert timeless(a) == timeless(b)
+
+
+def test_other_fingerprint_starts_afresh(dataset, tmp_path):
+    cfg = LoopConfig(1, 2, LRSchedule.scaled([1e-4], [1], 1), seed=7, progress=False)
+    fit(new_model(), dataset, None, STEP, cfg, checkpoint=tmp_path / "s.pt", fingerprint="one")
+    again = fit(new_model(), dataset, None, STEP, cfg, checkpoint=tmp_path / "s.pt", fingerprint="one")
+    assert again.resumed_from == 1 and len(again.history) == 1  # finished: nothing left to train
+    state, note = ckpt.load_state(tmp_path / "s.pt", "two")
+    assert state is None and "other settings or inputs" in note
+    off = fit(new_model(), dataset, None, STEP, cfg, checkpoint=tmp_path / "s.pt", fingerprint="one",
+              resume=False)
+    assert off.resumed_from == 0 and off.resume_note == "resume disabled"
+
+
+def test_nan_guard_stops_the_loop_naming_the_term(dataset, tmp_path):
+    torch.manual_seed(0)
+    broken = PWCLite()
+    with torch.no_grad():
+        broken.flow_estimators.predict_flow[0].weight.fill_(float("nan"))
+    with pytest.raises(NonFiniteLossError, match=r"loss term 'rigid' is nan \(epoch 1, step 0\)"):
+        fit(new_model(), dataset, FlowTeacher(broken), StepConfig(LossWeights(), min_area=40), CONFIG,
+            checkpoint=tmp_path / "n.pt", fingerprint="nan")
+    assert not (tmp_path / "n.pt").exists()  # nothing written for the failed epoch
+
+
+def test_history_csv_columns_and_blanks():
+    text = history_csv([{"epoch": 0, "val_a1": 0.25, "val_abs_rel": 0.5},
+                        {"epoch": 1, "ph": 0.1234567, "total": 0.2, "lr": 1e-4, "seconds": 1.5}])
+    lines = text.splitlines()
+    assert lines[0].split(",") == HISTORY_COLUMNS
+    assert lines[1].split(",")[HISTORY_COLUMNS.index("val_a1")] == "0.25"
+    assert lines[1].split(",")[HISTORY_COLUMNS.index("ph")] == ""
+    assert lines[2].split(",")[HISTORY_COLUMNS.index("ph")] == "0.123457"
+
+
+def test_fingerprint_covers_settings_and_files(tmp_path):
+    f = tmp_path / "w.bin"
+    f.write_bytes(b"abc")
+    a = ckpt.fingerprint({"lr": 1e-4}, {"flow": f, "none": None})
+    assert a == ckpt.fingerprint({"lr": 1e-4}, {"flow": f, "none": None})
+    assert a != ckpt.fingerprint({"lr": 1e-5}, {"flow": f, "none": None})
+    f.write_bytes(b"abd")
+    assert a != ckpt.fingerprint({"lr": 1e-4}, {"flow": f, "none": None})
+    with pytest.raises(FileNotFoundError, match="missing input"):
+        ckpt.fingerprint({}, {"x": tmp_path / "nope"})

@@ -1,0 +1,98 @@
+"""Tests for the train_depth stage: variant settings from params.yaml and an end-to-end tiny run."""
+
+from __future__ import annotations
+
+import csv
+import importlib.util
+import json
+from pathlib import Path
+
+import pytest
+import torch
+import train_fakes
+import yaml
+
+from f2depth import params as P
+from f2depth.depth import load_checkpoint, read_checkpoint
+from f2depth.train.settings import settings_from_params
+
+STAGE = Path(__file__).resolve().parents[1] / "stages" / "train_depth.py"
+
+
+@pytest.fixture
+def setup(tmp_path):
+    prep = train_fakes.write_prepared(tmp_path / "prepared", hw=(64, 64), scenes=1, frames=6)
+    mat, splits = train_fakes.write_nyu_test(tmp_path, n=3)
+    flow = train_fakes.write_flow_model(tmp_path / "flow.pt")
+    return tmp_path, train_fakes.write_params(tmp_path, prep, mat, splits, flow, epochs=1, seeds=[3, 1])
+
+
+def test_variant_lambdas_come_from_the_named_files(setup):
+    _, path = setup
+    p = P.load(path)
+    full, nof, base = (settings_from_params(p, v) for v in ("full", "no_feature", "baseline"))
+    assert (full.weights.lambda3, full.weights.lambda_rigid) == (3.0, 1.0)
+    assert (nof.weights.lambda3, nof.weights.lambda_rigid) == (0.0, 1.0)
+    assert (base.weights.lambda3, base.weights.lambda_rigid, base.flow_model) == (0.0, 0.0, None)
+    assert full.weights.lambda1 == base.weights.lambda1 == 0.001 and full.seeds == (3, 1)
+    p["lambda3"] = 0.5  # what `dvc exp run -S lambda3=0.5` changes: only the variants reading params.yaml
+    assert settings_from_params(p, "full").weights.lambda3 == 0.5
+    assert settings_from_params(p, "no_feature").weights.lambda3 == 0.0
+
+
+def test_variant_errors(setup):
+    _, path = setup
+    p = P.load(path)
+    with pytest.raises(P.ParamsError, match="unknown variant 'nope'"):
+        settings_from_params(p, "nope")
+    p["variants"]["full"]["dep_flow_model"] = "models/other.pt"
+    with pytest.raises(P.ParamsError, match="dep_flow_model is 'models/other.pt' but flow_model"):
+        settings_from_params(p, "full")
+    p["variants"]["baseline"]["rigid_from"] = "params.yaml"
+    with pytest.raises(P.ParamsError, match="has no flow_model but lambda_rigid=1.0"):
+        settings_from_params(p, "baseline")
+    p["variants"]["no_feature"]["feature_from"] = "missing.yaml"
+    with pytest.raises(P.ParamsError, match="reads lambda3 from missing.yaml, which does not exist"):
+        settings_from_params(p, "no_feature")
+
+
+def test_stage_trains_every_seed_and_writes_outputs(setup, monkeypatch):
+    root, path = setup
+    monkeypatch.setenv("F2DEPTH_MLFLOW", "0")
+    torch.set_num_threads(1)
+    spec = importlib.util.spec_from_file_location("train_depth_stage", STAGE)
+    stage = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(stage)
+    stage.main(["train_depth.py", "--variant", "full", "--params", str(path),
+                "--models", str(root / "models"), "--metrics", str(root / "metrics")])
+    out = root / "models" / "depth_full"
+    assert sorted(f.name for f in out.iterdir()) == ["model.pt", "seed1.pt", "seed3.pt"]
+    assert (out / "model.pt").read_bytes() == (out / "seed3.pt").read_bytes()  # the first listed seed
+    ck = read_checkpoint(out / "seed1.pt")
+    assert ck["seed"] == 1 and ck["variant"] == "full" and ck["params"]["weights"]["lambda3"] == 3.0
+    model = load_checkpoint(out / "model.pt")
+    assert model.config.height == 64
+    m = json.loads((root / "metrics" / "full.json").read_text())
+    assert m["seeds"] == [3, 1] and m["main_seed"] == 3 and [s["seed"] for s in m["per_seed"]] == [3, 1]
+    assert m["train_tuples"] == 4 and m["steps_per_epoch"] == 2 and m["flow_model"].endswith("flow.pt")
+    assert set(m["final_losses"]) == {"ph", "sm", "spp", "rigid", "feature", "total"}
+    assert 0.0 <= m["val_untrained"]["a1"] <= 1.0 and 0.0 <= m["val_trained"]["a1"] <= 1.0
+    with (root / "metrics" / "full" / "history.csv").open() as fh:
+        rows = list(csv.DictReader(fh))
+    assert [r["epoch"] for r in rows] == ["0", "1"] and rows[0]["ph"] == "" and float(rows[1]["ph"]) > 0
+    assert not list((root / "ckpt" / "full").glob("*.pt"))  # resume states removed after success
+
+
+def test_repository_variants_are_consistent():
+    """The variants of the repository's params.yaml resolve, and dvc.yaml's train_depth stage tracks them."""
+    root = STAGE.parents[1]
+    p = P.load(root / "params.yaml")
+    expected = {"full": (3.0, 1.0), "no_feature": (0.0, 1.0), "baseline": (0.0, 0.0),
+                "flow_pretrained": (3.0, 1.0), "flow_full_ft": (3.0, 1.0)}
+    assert set(p["variants"]) == set(expected)
+    for name, (l3, lr) in expected.items():
+        s = settings_from_params({**p, "lambda3": 3.0, "lambda_rigid": 1.0}, name)
+        assert (s.weights.lambda3, s.weights.lambda_rigid) == (l3, lr), name
+    stage = yaml.safe_load((root / "dvc.yaml").read_text())["stages"]["train_depth"]
+    assert stage["foreach"] == "${variants}" and "--variant ${key}" in stage["do"]["cmd"]
+    assert "${item.dep_flow_model}" in stage["do"]["deps"]

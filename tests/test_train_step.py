@@ -1,0 +1,182 @@
+"""Tests for f2depth.train.step and f2depth.train.teacher: rigid flow against the synthetic world's ground
+truth, one training step, the frozen flow network and the NaN/inf guard."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+import train_fakes
+from torch.utils.data import default_collate
+
+from f2depth.depth import DepthModel, DepthModelConfig
+from f2depth.flow import PWCLite
+from f2depth.geometry import in_view_mask, relative_pose, rigid_flow, warp
+from f2depth.losses import LossWeights, NonFiniteLossError, rigid_flow_loss
+from f2depth.synth.camera_path import handheld_path
+from f2depth.synth.groundtruth import occlusion
+from f2depth.synth.groundtruth import relative_pose as synth_relative_pose
+from f2depth.synth.groundtruth import rigid_flow as synth_rigid_flow
+from f2depth.synth.jobs import PATHS, room
+from f2depth.synth.plan import rng_for
+from f2depth.synth.render import render
+from f2depth.train import augment as A
+from f2depth.train.data import DataConfig, TupleDataset
+from f2depth.train.step import (
+    StepConfig,
+    compute_loss,
+    loss_terms,
+    network_forward,
+    teacher_forward,
+    train_step,
+)
+from f2depth.train.teacher import FlowTeacher
+
+HW = (48, 64)
+K_SYNTH = np.array([[52.0, 0.0, 36.2], [0.0, 53.0, 22.7], [0.0, 0.0, 1.0]])  # principal point off-centre
+
+
+@pytest.fixture(scope="module")
+def synth_pair():
+    """Two views of a synthetic room (ray-traced radiance and depth) with the generator's GT flow."""
+    scene = room("nyu", "bedroom", "bedroom_0001", 0)
+    poses, _ = handheld_path(scene, 60, rng_for(0, "train-step-test"), PATHS["nyu"])
+    c0, d0 = render(scene, poses[0], K_SYNTH, HW, 1)
+    for k in range(1, len(poses)):  # the first later frame that moved by > 2 px on average
+        flow, z1 = synth_rigid_flow(d0, K_SYNTH, synth_relative_pose(poses[0], poses[k]))
+        if np.linalg.norm(flow, axis=-1).mean() > 2.0:
+            break
+    c1, d1 = render(scene, poses[k], K_SYNTH, HW, 1)
+    occ = occlusion(flow, z1, d1)
+    return {"c0": c0, "c1": c1, "d0": d0, "pose0": poses[0], "pose1": poses[k], "flow": flow, "occ": occ}
+
+
+def _t(a: np.ndarray, dtype=torch.float32) -> torch.Tensor:
+    return torch.as_tensor(np.ascontiguousarray(a), dtype=dtype)
+
+
+def _training_convention(pair, flip: bool = False):
+    """(depth (1,1,H,W), K (1,3,3), src_T_tgt (1,4,4), GT flow (1,2,H,W), valid (1,1,H,W)) as the training
+    code builds them: T+1 = 1_T_0 from the world_T_cam poses of the prepared set's GT files."""
+    depth = _t(pair["d0"])[None, None]
+    K = _t(K_SYNTH)[None]
+    T = relative_pose(_t(pair["pose0"], torch.float64)[None], _t(pair["pose1"], torch.float64)[None]).float()
+    gt = _t(pair["flow"]).permute(2, 0, 1)[None]
+    valid = (~_t(pair["occ"], torch.bool))[None, None]
+    if flip:  # the mirrored world: images, depth, masks flipped; K mirrored; poses conjugated by x → −x
+        M = torch.diag(torch.tensor([-1.0, 1.0, 1.0, 1.0]))
+        depth, valid = depth.flip(-1), valid.flip(-1)
+        K = A.flip_intrinsics(K[0], HW[1])[None]
+        T = M @ T @ M
+        gt = gt.flip(-1) * torch.tensor([-1.0, 1.0]).view(1, 2, 1, 1)
+    return depth, K, T, gt, valid
+
+
+@pytest.mark.parametrize("flip", [False, True])
+def test_rigid_flow_equals_synthetic_ground_truth(synth_pair, flip):
+    depth, K, T, gt, valid = _training_convention(synth_pair, flip)
+    assert valid.float().mean() > 0.6  # most of the view is visible in the other frame
+    flow = rigid_flow(depth, K, T)
+    err = (flow - gt).norm(dim=1, keepdim=True)[valid]
+    assert float(err.max()) < 1e-2  # sub-pixel: float32 round-off only
+    assert float(gt.norm(dim=1, keepdim=True)[valid].mean()) > 1.0  # and the motion is not trivial
+
+
+def test_rigid_flow_warps_the_rendered_source_onto_the_target(synth_pair):
+    depth, K, T, _, valid = _training_convention(synth_pair)
+    flow = rigid_flow(depth, K, T)
+    c0 = _t(synth_pair["c0"]).permute(2, 0, 1)[None]
+    c1 = _t(synth_pair["c1"]).permute(2, 0, 1)[None]
+    mask = valid & (in_view_mask(flow) > 0)
+
+    def err(f):
+        return float((warp(c1, f) - c0).abs().mean(dim=1, keepdim=True)[mask].mean())
+
+    assert err(flow) < 0.5 * err(torch.zeros_like(flow))  # the rendered images agree where the flow says
+    assert err(flow) < err(rigid_flow(depth * 1.3, K, T))  # and better than with a wrong depth
+
+
+def test_rigid_loss_on_synthetic_pair_zero_at_gt_and_grows(synth_pair):
+    depth, K, T, gt, valid = _training_convention(synth_pair)
+    base = float(rigid_flow_loss(rigid_flow(depth, K, T), gt, valid.float()))
+    assert base < 1e-3
+    errs = [float(rigid_flow_loss(rigid_flow(depth * s, K, T), gt, valid.float())) for s in (1.05, 1.2, 1.5)]
+    assert base < errs[0] < errs[1] < errs[2]
+
+
+# ---- one step on the tiny prepared set ---------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    root = tmp_path_factory.mktemp("step")
+    prep = train_fakes.write_prepared(root / "prepared", hw=(64, 64), scenes=1, frames=4)
+    ds = TupleDataset(prep, root / "keypoints" / "train.npz", DataConfig(num_points=30))
+    batch = default_collate([ds.item(i, 0) for i in range(2)])
+    torch.manual_seed(0)
+    return {"batch": batch, "teacher": FlowTeacher(PWCLite())}
+
+
+def test_terms_and_monitor_only_terms(tiny):
+    torch.manual_seed(1)
+    model = DepthModel(DepthModelConfig(64, 64))
+    cfg = StepConfig(LossWeights(lambda3=0.0), min_area=10)
+    net = network_forward(model, tiny["batch"])
+    flow = teacher_forward(tiny["teacher"], tiny["batch"], features=True)
+    assert flow.flow.shape == (2, 2, 64, 64) and len(flow.feats_tgt) == 6
+    assert [f.shape[1] for f in flow.feats_src] == [16, 32, 64, 96, 128, 192]
+    terms = loss_terms(net, tiny["batch"], flow, cfg)
+    assert set(terms) == {"ph", "sm", "spp", "rigid", "feature"}
+    assert all(math.isfinite(float(v)) for v in terms.values())
+    assert terms["rigid"].requires_grad and not terms["feature"].requires_grad  # λ3 = 0: logged only
+    assert set(loss_terms(net, tiny["batch"], None, cfg)) == {"ph", "sm", "spp"}  # baseline
+
+
+def test_train_step_updates_depth_not_teacher(tiny):
+    torch.manual_seed(2)
+    model = DepthModel(DepthModelConfig(64, 64))
+    teacher = tiny["teacher"]
+    before_t = {k: v.clone() for k, v in teacher.net.state_dict().items()}
+    before_m = {k: v.clone() for k, v in model.state_dict().items()}
+    opt = torch.optim.Adam(model.parameters(), lr=1e-4)
+    loss, logs = train_step(model, opt, tiny["batch"], teacher, StepConfig(LossWeights(), min_area=10))
+    assert not loss.requires_grad and set(logs) == {"ph", "sm", "spp", "rigid", "feature", "total"}
+    assert all(not p.requires_grad and p.grad is None for p in teacher.net.parameters())
+    assert all(torch.equal(v, before_t[k]) for k, v in teacher.net.state_dict().items())
+    for name in ("depth_decoder", "pose_decoder", "depth_encoder", "pose_encoder"):
+        key = next(k for k in before_m if k.startswith(name) and k.endswith("weight"))
+        assert not torch.equal(model.state_dict()[key], before_m[key]), name
+    assert not teacher.net.training
+
+
+def test_nan_guard_names_the_term_and_leaves_weights(tiny):
+    torch.manual_seed(3)
+    model = DepthModel(DepthModelConfig(64, 64))
+    broken = PWCLite()
+    with torch.no_grad():
+        broken.flow_estimators.predict_flow[0].weight.fill_(float("nan"))
+    before = {k: v.detach().clone() for k, v in model.named_parameters()}
+    opt = torch.optim.Adam(model.parameters(), lr=1e-4)
+    with pytest.raises(NonFiniteLossError, match=r"loss term 'rigid' is nan \(epoch 3, step 7\)") as info:
+        train_step(model, opt, tiny["batch"], FlowTeacher(broken), StepConfig(LossWeights(), min_area=10),
+                   context="epoch 3, step 7")
+    assert info.value.term == "rigid"
+    # no update (BatchNorm running statistics of the forward pass are buffers, not weights)
+    assert all(torch.equal(v, before[k]) for k, v in model.named_parameters())
+    seen = []
+    with pytest.raises(NonFiniteLossError):
+        train_step(model, opt, tiny["batch"], FlowTeacher(broken), StepConfig(LossWeights(), min_area=10),
+                   agree=seen.append)
+    assert len(seen) == 1 and seen[0].term == "rigid"  # the DDP hook sees the error before anything else
+
+
+def test_compute_loss_matches_weighted_terms(tiny):
+    torch.manual_seed(4)
+    model = DepthModel(DepthModelConfig(64, 64))
+    w = LossWeights(lambda1=0.01, lambda2=0.1, lambda3=2.0, lambda_rigid=0.5)
+    loss, logs = compute_loss(model, tiny["batch"], tiny["teacher"], StepConfig(w, min_area=10))
+    expected = (logs["ph"] + 0.01 * logs["sm"] + 0.1 * logs["spp"] + 0.5 * logs["rigid"]
+                + 2.0 * logs["feature"])
+    assert float(loss) == pytest.approx(expected, rel=1e-5)
+    assert logs["total"] == pytest.approx(expected, rel=1e-5)
