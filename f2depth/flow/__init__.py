@@ -1,0 +1,39 @@
+"""Optical flow: ARFlow's PWC-Lite, its cost volume, census, warp, unsupervised loss, AR transforms,
+checkpoint import and evaluation (research/arflow.md)."""
+
+from f2depth.flow.census import census_distance
+from f2depth.flow.checkpoint import (
+    CheckpointError,
+    load_arflow_checkpoint,
+    load_flow_model,
+    read_flow_checkpoint,
+    save_flow_model,
+)
+from f2depth.flow.correlation import correlation, correlation_reference
+from f2depth.flow.evaluation import EPEAccumulator, epe_stats, flow_to_color, low_texture_mask
+from f2depth.flow.loss import SINTEL_FT, SINTEL_RAW, FlowLossConfig, flow_loss, non_occluded_masks
+from f2depth.flow.pwclite import PWCLite, resize_flow
+from f2depth.flow.warp import warp
+
+__all__ = [
+    "SINTEL_FT",
+    "SINTEL_RAW",
+    "CheckpointError",
+    "EPEAccumulator",
+    "FlowLossConfig",
+    "PWCLite",
+    "census_distance",
+    "correlation",
+    "correlation_reference",
+    "epe_stats",
+    "flow_loss",
+    "flow_to_color",
+    "load_arflow_checkpoint",
+    "load_flow_model",
+    "low_texture_mask",
+    "non_occluded_masks",
+    "read_flow_checkpoint",
+    "resize_flow",
+    "save_flow_model",
+    "warp",
+]

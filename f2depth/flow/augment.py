@@ -1,0 +1,142 @@
+"""Training augmentation of frame pairs as F²Depth / P²Net do it (research/p2net.md §2): with probability
+0.5 a colour jitter (brightness, contrast, saturation in [0.8, 1.2], hue in [−0.1, 0.1], applied in a
+random order, one draw shared by both frames of a sample), with probability 0.5 a horizontal flip of both
+frames and of the target's keypoints.
+
+As in P²Net, the jittered images are only the *network input*; the loss compares the un-jittered
+(but flipped) frames. A flip changes the sign of the horizontal flow component: flipping a pair and its
+flow ``f`` gives the flow ``(−u, v)`` mirrored (:func:`hflip_flow`); frames are never swapped, so the
+flow stays target → source. All randomness comes from the ``torch.Generator`` passed in.
+
+The jitter operations follow torchvision's ``ColorJitter`` definitions (written here, torchvision is not a
+dependency): brightness ``x·f``; contrast ``f·x + (1−f)·mean(grey(x))``; saturation ``f·x + (1−f)·grey(x)``;
+hue: rotate the HSV hue by ``f`` turns; results clipped to [0, 1].
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from f2depth.flow.census import GREY_WEIGHTS
+
+
+@dataclass(frozen=True)
+class AugmentConfig:
+    color_p: float = 0.5
+    brightness: tuple[float, float] = (0.8, 1.2)
+    contrast: tuple[float, float] = (0.8, 1.2)
+    saturation: tuple[float, float] = (0.8, 1.2)
+    hue: tuple[float, float] = (-0.1, 0.1)
+    flip_p: float = 0.5
+
+
+def grey(img: torch.Tensor) -> torch.Tensor:
+    """``(...,3,H,W)`` RGB in [0,1] → ``(...,1,H,W)`` luma (ITU-R 601, torchvision's weights)."""
+    w = img.new_tensor(GREY_WEIGHTS).view(3, 1, 1)
+    return (img * w).sum(-3, keepdim=True)
+
+
+def rgb_to_hsv(img: torch.Tensor) -> torch.Tensor:
+    """``(...,3,H,W)`` RGB in [0,1] → HSV, every channel in [0,1] (hue in turns)."""
+    r, g, b = img.unbind(-3)
+    maxc, _ = img.max(-3)
+    minc, _ = img.min(-3)
+    delta = maxc - minc
+    s = torch.where(maxc > 0, delta / maxc.clamp_min(1e-12), torch.zeros_like(maxc))
+    safe = delta.clamp_min(1e-12)
+    h = torch.where(maxc == r, ((g - b) / safe) % 6,
+                    torch.where(maxc == g, (b - r) / safe + 2, (r - g) / safe + 4))
+    h = torch.where(delta > 0, h / 6.0, torch.zeros_like(h)) % 1.0
+    return torch.stack([h, s, maxc], -3)
+
+
+def hsv_to_rgb(img: torch.Tensor) -> torch.Tensor:
+    """Inverse of :func:`rgb_to_hsv`."""
+    h, s, v = img.unbind(-3)
+    h6 = (h % 1.0) * 6.0
+    i = torch.floor(h6)
+    f = h6 - i
+    i = i.to(torch.int64) % 6
+    p, q, t = v * (1 - s), v * (1 - s * f), v * (1 - s * (1 - f))
+    table = [(v, t, p), (q, v, p), (p, v, t), (p, q, v), (t, p, v), (v, p, q)]
+    out = torch.zeros_like(img)
+    for k, (rr, gg, bb) in enumerate(table):
+        sel = (i == k).unsqueeze(-3)
+        out = torch.where(sel, torch.stack([rr, gg, bb], -3), out)
+    return out
+
+
+def adjust(img: torch.Tensor, op: str, factor: float) -> torch.Tensor:
+    """One jitter operation on ``(...,3,H,W)`` in [0,1] (see the module docstring)."""
+    if op == "brightness":
+        out = img * factor
+    elif op == "contrast":
+        out = factor * img + (1 - factor) * grey(img).mean((-1, -2, -3), keepdim=True)
+    elif op == "saturation":
+        out = factor * img + (1 - factor) * grey(img)
+    elif op == "hue":
+        hsv = rgb_to_hsv(img.clamp(0, 1))
+        out = hsv_to_rgb(torch.cat([(hsv[..., :1, :, :] + factor) % 1.0, hsv[..., 1:, :, :]], -3))
+    else:
+        raise ValueError(f"unknown colour operation {op!r}")
+    return out.clamp(0, 1)
+
+
+def _uniform(lo_hi: tuple[float, float], gen: torch.Generator) -> float:
+    lo, hi = lo_hi
+    return lo + (hi - lo) * float(torch.rand((), generator=gen))
+
+
+def color_jitter(frames: list[torch.Tensor], gen: torch.Generator, cfg: AugmentConfig = AugmentConfig()
+                 ) -> list[torch.Tensor]:
+    """Jitter frames ``(B,3,H,W)`` in [0,1]; per sample, with probability ``color_p``, one draw of the four
+    factors and of their order, shared by all frames of that sample. Returns new tensors."""
+    out = [f.clone() for f in frames]
+    for i in range(frames[0].shape[0]):
+        if float(torch.rand((), generator=gen)) >= cfg.color_p:
+            continue
+        ops = [("brightness", _uniform(cfg.brightness, gen)), ("contrast", _uniform(cfg.contrast, gen)),
+               ("saturation", _uniform(cfg.saturation, gen)), ("hue", _uniform(cfg.hue, gen))]
+        order = torch.randperm(4, generator=gen).tolist()
+        for frame in out:
+            x = frame[i]
+            for k in order:
+                x = adjust(x, *ops[k])
+            frame[i] = x
+    return out
+
+
+def hflip_keypoints(keypoints: torch.Tensor, width: int) -> torch.Tensor:
+    """``(...,2)`` integer pixels x first → mirrored: ``x ↦ W − 1 − x``."""
+    out = keypoints.clone()
+    out[..., 0] = width - 1 - out[..., 0]
+    return out
+
+
+def hflip_flow(flow: torch.Tensor) -> torch.Tensor:
+    """Flow ``(B,2,H,W)`` of a pair → the flow of the mirrored pair: mirrored, u negated."""
+    out = flow.flip(-1).clone()
+    out[:, 0] = -out[:, 0]
+    return out
+
+
+def augment_batch(batch: dict[str, torch.Tensor], gen: torch.Generator, cfg: AugmentConfig = AugmentConfig()
+                  ) -> dict[str, torch.Tensor]:
+    """Flip and jitter a batch ``{"img1", "img2" (B,3,H,W), "keypoints" (B,K,2), "keypoint_mask" (B,K)}``.
+
+    Returns a new dict: ``img1``, ``img2``, ``keypoints`` flipped per sample (for the loss) and ``net1``,
+    ``net2`` = the flipped frames colour-jittered (for the network); other entries are passed through.
+    """
+    out = dict(batch)
+    img1, img2, kp = batch["img1"].clone(), batch["img2"].clone(), batch["keypoints"].clone()
+    w = img1.shape[-1]
+    flip = torch.rand(img1.shape[0], generator=gen) < cfg.flip_p
+    if flip.any():
+        img1[flip] = img1[flip].flip(-1)
+        img2[flip] = img2[flip].flip(-1)
+        kp[flip] = hflip_keypoints(kp[flip], w)
+    out.update(img1=img1, img2=img2, keypoints=kp, flipped=flip)
+    out["net1"], out["net2"] = color_jitter([img1, img2], gen, cfg)
+    return out

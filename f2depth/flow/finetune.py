@@ -1,0 +1,199 @@
+"""Fine-tuning PWC-Lite on the prepared indoor pairs with F²Depth's patch loss or the all-pixel census loss
+(paper §3.1 and §4.1; SPEC §4.3), resumable, with per-epoch EPE on synthetic ground truth.
+
+Per step: a batch of pairs (t, t+1) with the keypoints of t is flipped and colour-jittered
+(:mod:`f2depth.flow.augment`; the network sees the jittered frames, the loss the un-jittered ones), the
+network predicts both directions, and :func:`f2depth.flow.patch_loss.finetune_loss` gives L_flow. Adam with
+ARFlow's settings (betas 0.9/0.999, eps 1e-7, weight decay 1e-6 on weights, none on biases) and a
+constant learning rate (paper: 5e-5, 37 epochs, batch 20). A step with a non-finite loss is skipped.
+
+**Resuming.** After every epoch the model, the optimiser, the epoch and the history are written
+atomically to ``resume_path`` together with a fingerprint (configuration, training pairs and whatever
+the caller adds, e.g. hashes of the pretrained model and the keypoints). A run whose fingerprint matches
+continues after the last finished epoch, so a crash loses at most the epoch in progress; shuffling and
+augmentation of epoch e come from a generator seeded by (seed, e), so a resumed run ends with the same
+weights as an uninterrupted one. Any other state file is ignored and overwritten.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+import warnings
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import torch
+from tqdm import tqdm
+
+from f2depth.flow.augment import augment_batch
+from f2depth.flow.evaluation import EPEAccumulator
+from f2depth.flow.finetune_data import FlowPairs, GTPair, collate
+from f2depth.flow.patch_loss import FinetuneLossConfig, finetune_loss
+from f2depth.flow.pwclite import PWCLite
+from f2depth.io import torch_save
+
+RESUME_FORMAT = "f2depth.flow_finetune_resume"
+RESUME_VERSION = 1
+TRAIN_COLUMNS = ("loss", "photometric", "smooth", "used_pixels", "coverage", "noc_fraction")
+EPE_COLUMNS = ("epe_all", "epe_noc", "epe_low_texture")
+HISTORY_COLUMNS = ("epoch", *TRAIN_COLUMNS, "steps", "skipped_steps", *EPE_COLUMNS, "seconds")
+
+
+@dataclass(frozen=True)
+class FinetuneConfig:
+    loss: str = "patch"               # patch | full
+    epochs: int = 6
+    batch_size: int = 4
+    lr: float = 5e-5
+    patch_spacing: int = 2
+    smooth_weight: float = 50.0       # lambda_flow_smooth
+    occlusion: str = "forward_backward"  # the paper's check; "range_map" for a degenerate pretrained flow
+    augment: bool = True
+    weight_decay: float = 1e-6
+    seed: int = 0
+
+    def loss_config(self) -> FinetuneLossConfig:
+        return FinetuneLossConfig(pixels=self.loss, spacing=self.patch_spacing,
+                                  smooth_weight=self.smooth_weight, occlusion=self.occlusion)
+
+
+def make_optimizer(model: torch.nn.Module, cfg: FinetuneConfig) -> torch.optim.Optimizer:
+    """ARFlow's Adam (weight decay on weights only) at the constant fine-tuning rate."""
+    weights = [p for n, p in model.named_parameters() if not n.endswith("bias")]
+    biases = [p for n, p in model.named_parameters() if n.endswith("bias")]
+    groups = [{"params": weights, "weight_decay": cfg.weight_decay}, {"params": biases, "weight_decay": 0.0}]
+    return torch.optim.Adam(groups, lr=cfg.lr, betas=(0.9, 0.999), eps=1e-7)
+
+
+@torch.no_grad()
+def evaluate_epe(model: PWCLite, pairs: Iterable[GTPair], device: str = "cpu") -> dict[str, Any]:
+    """EPE of the forward flow on ground-truth pairs: ``{"pairs", "epe_all", "epe_noc", "epe_occ",
+    "epe_low_texture", "pixels_*"}`` (EPE None for empty pixel sets or no pairs)."""
+    was_training = model.training
+    model.eval()
+    acc, n = EPEAccumulator(), 0
+    for g in pairs:
+        pred = model(g.img1.to(device), g.img2.to(device), with_backward=False)[0][0].float().cpu()
+        acc.add(pred, g.flow, g.occluded, g.low_texture, g.valid)
+        n += 1
+    model.train(was_training)
+    return {"pairs": n, **acc.result()}
+
+
+def zero_flow_epe(pairs: Iterable[GTPair]) -> dict[str, Any]:
+    """EPE of zero flow on the same pixels (how much the ground truth moves): as :func:`evaluate_epe`."""
+    acc, n = EPEAccumulator(), 0
+    for g in pairs:
+        acc.add(torch.zeros_like(g.flow), g.flow, g.occluded, g.low_texture, g.valid)
+        n += 1
+    return {"pairs": n, **acc.result()}
+
+
+def epoch_generator(seed: int, epoch: int) -> torch.Generator:
+    """The random stream of (0-based) ``epoch``: shuffling and augmentation."""
+    return torch.Generator().manual_seed(seed * 1_000_003 + epoch)
+
+
+def train_epoch(model: PWCLite, dataset: FlowPairs, cfg: FinetuneConfig, optimizer: torch.optim.Optimizer,
+                epoch: int, device: str = "cpu", workers: int = 0, progress: bool = True) -> dict[str, float]:
+    """One pass over ``dataset`` in the order and with the augmentation of ``epoch``; mean loss terms."""
+    gen = epoch_generator(cfg.seed, epoch)
+    order = torch.randperm(len(dataset), generator=gen).tolist()
+    loader = torch.utils.data.DataLoader(dataset, batch_size=cfg.batch_size, sampler=order,
+                                         collate_fn=collate, num_workers=workers)
+    loss_cfg = cfg.loss_config()
+    model.train()
+    sums = dict.fromkeys(TRAIN_COLUMNS, 0.0)
+    steps = skipped = 0
+    bar = tqdm(loader, desc=f"flow_finetune[{cfg.loss}] {epoch + 1}/{cfg.epochs}", disable=not progress,
+               leave=False)
+    for batch in bar:
+        if cfg.augment:
+            batch = augment_batch(batch, gen)
+        else:
+            batch = {**batch, "net1": batch["img1"], "net2": batch["img2"]}
+        img1, img2 = batch["img1"].to(device), batch["img2"].to(device)
+        flows_fw, flows_bw = model(batch["net1"].to(device), batch["net2"].to(device), with_backward=True)
+        loss, stats = finetune_loss(flows_fw[0], flows_bw[0], img1, img2, batch["keypoints"],
+                                    batch["keypoint_mask"], loss_cfg)
+        optimizer.zero_grad(set_to_none=True)
+        if not torch.isfinite(loss):
+            skipped += 1
+            continue
+        loss.backward()
+        optimizer.step()
+        steps += 1
+        for k in TRAIN_COLUMNS:
+            sums[k] += stats[k]
+        bar.set_postfix(loss=f"{stats['loss']:.4f}")
+    out = {k: v / max(steps, 1) for k, v in sums.items()}
+    out.update(steps=steps, skipped_steps=skipped)
+    return out
+
+
+def _load_resume(path: Path, fingerprint: Mapping[str, Any]) -> dict[str, Any] | None:
+    if not path.is_file():
+        return None
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except (RuntimeError, OSError, EOFError, ValueError) as exc:
+        warnings.warn(f"{path}: unreadable fine-tuning state ({exc}); starting afresh", stacklevel=3)
+        return None
+    if (not isinstance(state, dict) or state.get("format") != RESUME_FORMAT
+            or state.get("version") != RESUME_VERSION or state.get("fingerprint") != dict(fingerprint)):
+        return None
+    return state
+
+
+def finetune(model: PWCLite, dataset: FlowPairs, cfg: FinetuneConfig, eval_pairs: Iterable[GTPair] = (),
+             resume_path: str | os.PathLike | None = None, fingerprint: Mapping[str, Any] | None = None,
+             device: str = "cpu", workers: int = 0,
+             on_epoch: Callable[[int, dict[str, Any], list[dict[str, Any]]], None] | None = None,
+             progress: bool = True) -> dict[str, Any]:
+    """Fine-tune ``model`` in place; returns ``{"history", "epochs_run", "resumed_from", "seconds"}``.
+
+    ``eval_pairs`` (kept in memory) are scored after every epoch; ``on_epoch(epoch, row, history)`` is
+    called after each epoch (1-based) once its state is saved. ``history`` rows have
+    :data:`HISTORY_COLUMNS` (EPE None without ground truth).
+    """
+    eval_pairs = list(eval_pairs)
+    model.to(device)
+    optimizer = make_optimizer(model, cfg)
+    full_fp = {"config": asdict(cfg), "pairs": [p.pair_id for p in dataset.pairs], **dict(fingerprint or {})}
+    resume = Path(resume_path) if resume_path is not None else None
+    state = _load_resume(resume, full_fp) if resume is not None else None
+    start, history = 0, []
+    if state is not None:
+        model.load_state_dict(state["model"])
+        optimizer.load_state_dict(state["optimizer"])
+        start, history = int(state["epoch"]), [dict(r) for r in state["history"]]
+    t0 = time.perf_counter()
+    for epoch in range(start, cfg.epochs):
+        t_epoch = time.perf_counter()
+        row: dict[str, Any] = {"epoch": epoch + 1}
+        row.update(train_epoch(model, dataset, cfg, optimizer, epoch, device, workers, progress))
+        if not all(math.isfinite(row[k]) for k in TRAIN_COLUMNS):
+            raise FloatingPointError(f"flow_finetune[{cfg.loss}]: non-finite epoch statistics {row}")
+        if row["steps"] and row["noc_fraction"] == 0:
+            warnings.warn(f"flow_finetune[{cfg.loss}] epoch {epoch + 1}: the {cfg.occlusion} check marked "
+                          "every pixel occluded, so only the smoothness term trained; the flow is degenerate "
+                          "(e.g. constant, forward = backward). Use a better pretrained model or set "
+                          "flow_finetune.occlusion: range_map", stacklevel=2)
+        epe = evaluate_epe(model, eval_pairs, device) if eval_pairs else {}
+        row.update({k: epe.get(k) for k in EPE_COLUMNS})
+        row["seconds"] = round(time.perf_counter() - t_epoch, 2)
+        history.append(row)
+        if resume is not None:
+            torch_save(resume, {"format": RESUME_FORMAT, "version": RESUME_VERSION, "fingerprint": full_fp,
+                                "epoch": epoch + 1, "history": history,
+                                "model": {k: v.detach().cpu() for k, v in model.state_dict().items()},
+                                "optimizer": optimizer.state_dict()})
+        if on_epoch is not None:
+            on_epoch(epoch + 1, row, history)
+    model.eval()
+    return {"history": history, "epochs_run": max(cfg.epochs - start, 0),
+            "resumed_from": start, "seconds": round(time.perf_counter() - t0, 1)}

@@ -1,0 +1,116 @@
+"""Scoring a flow model against ground truth: Sintel-layout pairs (``.flo`` + occlusions) and prepared
+frame pairs whose flow follows from ground-truth depth and pose (rigid scene).
+
+Predictions are made at a chosen network size (frames area-resized) and the flow is resized back to the
+ground-truth resolution with its components rescaled (ARFlow's protocol), then scored by
+:class:`f2depth.flow.evaluation.EPEAccumulator` — next to zero flow on the same pixels as a baseline.
+Low-texture pixels are those of :func:`f2depth.flow.evaluation.low_texture_mask` on frame 1.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+
+from f2depth.data.sintel import SintelPair, load_pair, to_tensor
+from f2depth.flow.evaluation import EPEAccumulator, endpoint_error, flow_to_color, low_texture_mask
+from f2depth.flow.pwclite import PWCLite, resize_flow
+
+
+@torch.no_grad()
+def predict(model: PWCLite, image1: np.ndarray, image2: np.ndarray, size: tuple[int, int] | None = None,
+            device: str = "cpu") -> torch.Tensor:
+    """RGB uint8 frames (H,W,3) → forward flow ``(1,2,H,W)`` in the frames' pixels (computed at ``size``)."""
+    h, w = image1.shape[:2]
+    a = to_tensor(image1, size).unsqueeze(0).to(device)
+    b = to_tensor(image2, size).unsqueeze(0).to(device)
+    flow = model(a, b, with_backward=False)[0][0]
+    return resize_flow(flow, (h, w)).cpu()
+
+
+def _score(model, acc, zero, image1, image2, gt, occluded, valid, size, device):
+    img = to_tensor(image1).unsqueeze(0)
+    low = low_texture_mask(img)
+    pred = predict(model, image1, image2, size, device)
+    acc.add(pred, gt, occluded, low, valid)
+    zero.add(torch.zeros_like(gt), gt, occluded, low, valid)
+    return pred
+
+
+def _result(acc: EPEAccumulator, zero: EPEAccumulator, pairs: int) -> dict:
+    return {"pairs": pairs, "model": acc.result(), "zero_flow": zero.result()}
+
+
+def evaluate_sintel(model: PWCLite, pairs: Sequence[SintelPair], size: tuple[int, int] | None,
+                    device: str = "cpu", figure_dir: str | os.PathLike | None = None, figures: int = 0
+                    ) -> dict:
+    """EPE of ``model`` and of zero flow on Sintel-layout pairs with ``.flo`` and occlusion ground truth.
+
+    With ``figure_dir``, writes colour-wheel PNGs of the first ``figures`` pairs (spread over the list).
+    """
+    acc, zero = EPEAccumulator(), EPEAccumulator()
+    chosen = set(np.linspace(0, len(pairs) - 1, figures).round().astype(int).tolist()) if figures else set()
+    for i, pair in enumerate(pairs):
+        d = load_pair(pair)
+        if d["flow"] is None or d["occluded"] is None:
+            raise ValueError(f"evaluate_sintel: {pair.image1} has no flow/occlusion ground truth")
+        gt = torch.from_numpy(d["flow"]).permute(2, 0, 1).unsqueeze(0)
+        occ = torch.from_numpy(d["occluded"])[None, None]
+        pred = _score(model, acc, zero, d["image1"], d["image2"], gt, occ, None, size, device)
+        if figure_dir is not None and i in chosen:
+            save_figure(Path(figure_dir) / f"{pair.sequence}_{pair.pass_name}_{pair.frame:04d}.png",
+                        d["image1"], gt, pred)
+    return _result(acc, zero, len(pairs))
+
+
+def evaluate_prepared(model: PWCLite, prepared_root: str | os.PathLike, max_pairs: int | None = None,
+                      device: str = "cpu", figure_dir: str | os.PathLike | None = None, figures: int = 0
+                      ) -> dict | None:
+    """EPE on the prepared set's consecutive pairs (``pairs.csv``) that have ground truth; None when the
+    set has no ground truth. Flow = rigid flow of frame 1's depth under the relative pose; occluded =
+    hidden in frame 2 by depth test or leaving the image; pixels without depth are not scored. The
+    network runs at the prepared size."""
+    from f2depth.data.prepared import PreparedSet
+    from f2depth.geometry import in_view_mask, occlusion_by_depth, relative_pose, rigid_flow
+
+    ds = PreparedSet(prepared_root)
+    pairs = [p for p in ds.pairs if ds.has_gt(p.frame1) and ds.has_gt(p.frame2)]
+    if not pairs:
+        return None
+    if max_pairs is not None and len(pairs) > max_pairs:
+        pairs = [pairs[int(i)] for i in np.linspace(0, len(pairs) - 1, max_pairs).round()]
+    chosen = set(np.linspace(0, len(pairs) - 1, figures).round().astype(int).tolist()) if figures else set()
+    K = torch.from_numpy(ds.K)[None]
+    acc, zero = EPEAccumulator(), EPEAccumulator()
+    for i, p in enumerate(pairs):
+        (d1, pose1), (d2, pose2) = ds.gt(p.frame1), ds.gt(p.frame2)
+        depth1 = torch.from_numpy(d1).double()[None, None]
+        depth2 = torch.from_numpy(d2).double()[None, None]
+        T = relative_pose(torch.from_numpy(pose1)[None], torch.from_numpy(pose2)[None])  # cam2_T_cam1
+        gt = rigid_flow(depth1, K, T)
+        occluded = occlusion_by_depth(depth1, depth2, K, T) | (in_view_mask(gt) == 0)
+        valid = depth1 > 0
+        image1, image2 = ds.image(p.frame1), ds.image(p.frame2)
+        gt32 = gt.float()
+        pred = _score(model, acc, zero, image1, image2, gt32, occluded, valid, None, device)
+        if figure_dir is not None and i in chosen:
+            save_figure(Path(figure_dir) / f"prepared_{p.pair_id}.png", image1, gt32 * valid, pred)
+    return _result(acc, zero, len(pairs))
+
+
+def save_figure(path: str | os.PathLike, image1: np.ndarray, gt: torch.Tensor, pred: torch.Tensor) -> None:
+    """One row: frame 1 | ground truth | prediction (same colour scale) | end-point error (0–5 px, grey)."""
+    from f2depth.io import imwrite
+
+    gt_np = gt[0].permute(1, 2, 0).numpy()
+    pred_np = pred[0].permute(1, 2, 0).numpy()
+    scale = float(np.linalg.norm(gt_np, axis=2).max()) or 1.0
+    err = endpoint_error(pred, gt)[0, 0].numpy()
+    err_img = np.repeat((np.clip(err / 5.0, 0, 1) * 255).astype(np.uint8)[..., None], 3, 2)
+    row = np.concatenate([image1, flow_to_color(gt_np, scale), flow_to_color(pred_np, scale), err_img], 1)
+    imwrite(path, cv2.cvtColor(row, cv2.COLOR_RGB2BGR))

@@ -1,0 +1,127 @@
+"""DVC stage `evaluate@<variant>`: score every seed's depth model of one ablation variant.
+
+Usage: python stages/evaluate.py --variant NAME [--params params.yaml] [--models models]
+       [--metrics metrics/evaluate] [--reports reports/eval]
+
+For each seed k of `train_depth.seeds`, models/depth_NAME/seed<k>.pt runs the NYU test protocol (the
+`data.nyu_labeled` test split; `evaluate.nyu_gt`, `evaluate.nyu_crop`), 7-Scenes (test sequences, every
+`evaluate.sevenscenes_stride`-th frame) and Campus, each without and with flip post-processing, and is
+timed at `evaluate.timing_height` × `timing_width` (batch 1, median of `timing_repeats` runs after
+`timing_warmup`). Writes
+- metrics/evaluate/NAME.json: the mean over seeds (nyu.*, nyu_pp.*, sevenscenes.* = mean over all test
+  frames as the paper's Average row, campus.* = mean of the scene rows, ms, ms_pp), `n_seeds` and
+  `per_seed`;
+- reports/eval/NAME/: details.json (per-scene rows, std over images, settings, timings per seed),
+  nyu.csv / sevenscenes.csv / campus.csv (per-image metrics of every seed, ± PP) and figures.npz (the
+  first seed's predictions on a few test images, for the tables stage's figures);
+and mirrors the numbers to an MLflow child run `evaluate@NAME`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import torch
+
+from f2depth import params as P
+from f2depth import tracking
+from f2depth.data.campus import CampusSet
+from f2depth.data.nyu_labeled import NYULabeledSet
+from f2depth.data.sevenscenes import SevenScenesSet
+from f2depth.depth import load_checkpoint, read_checkpoint
+from f2depth.eval.suite import SuiteConfig, evaluate_model, limit, metrics_document, model_disparity, rows_csv
+from f2depth.io import save_npz, write_json, write_text
+
+TRAINED_KEYS = ("flow_model", "weights", "lambda_sources", "epochs", "batch_size", "seeds")
+
+
+def suite_config(p: dict, device: str) -> SuiteConfig:
+    e = P.get(p, "evaluate")
+    keys = ("height", "width", "interpolation", "upsample", "batch_size", "timing_height", "timing_width",
+            "timing_repeats", "timing_warmup", "figure_images", "figure_width")
+    return SuiteConfig(nyu_crop=str(P.get(p, "evaluate.nyu_crop")), device=device,
+                       datasets=tuple(P.get(p, "evaluate.datasets")), progress=True,
+                       **{k: e[k] for k in keys if k in e})
+
+
+def load_sets(p: dict, names: tuple[str, ...]) -> dict:
+    """The test sets named in `evaluate.datasets`, cut to `evaluate.max_images` each when set."""
+    most = P.get(p, "evaluate.max_images", None)
+    makers = {
+        "nyu": lambda: NYULabeledSet(P.get(p, "data.nyu_labeled"), P.get(p, "data.nyu_splits"), split="test",
+                                     gt=str(P.get(p, "evaluate.nyu_gt"))),
+        "sevenscenes": lambda: SevenScenesSet(P.get(p, "data.sevenscenes"), split="test",
+                                              stride=int(P.get(p, "evaluate.sevenscenes_stride"))),
+        "campus": lambda: CampusSet(P.get(p, "data.campus")),
+    }  # fmt: skip
+    return {name: limit(makers[name](), most) for name in names}
+
+
+def main(argv: list[str]) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--variant", required=True)
+    ap.add_argument("--params", default=str(P.DEFAULT_PARAMS))
+    ap.add_argument("--models", default="models", help="folder of models/depth_<variant>")
+    ap.add_argument("--metrics", default="metrics/evaluate", help="folder of <variant>.json")
+    ap.add_argument("--reports", default="reports/eval", help="folder of <variant>/ (details, CSV, figures)")
+    args = ap.parse_args(argv[1:])
+    p = P.load(args.params)
+    if args.variant not in P.get(p, "variants"):
+        raise P.ParamsError(f"{p['_file']}: no variant '{args.variant}' under `variants`")
+    seeds = [int(s) for s in P.get(p, "train_depth.seeds")]
+    model_dir = Path(args.models) / f"depth_{args.variant}"
+    files = [model_dir / f"seed{s}.pt" for s in seeds]
+    missing = [str(f) for f in files if not f.is_file()]
+    if missing:
+        raise SystemExit(f"{', '.join(missing)}: not found; run `dvc repro train_depth@{args.variant}` "
+                         "(train_depth.seeds lists the seeds to evaluate)")
+    if P.get(p, "evaluate.threads", None):
+        torch.set_num_threads(int(P.get(p, "evaluate.threads")))
+    cfg = suite_config(p, P.resolve_device(str(P.get(p, "device"))))
+    sets = load_sets(p, cfg.datasets)
+    out_dir = Path(args.reports) / args.variant
+    t0 = time.perf_counter()
+    headlines, details, rows, kept = [], {}, {}, None
+    with tracking.stage_run("evaluate", p, variant=args.variant, sections=("evaluate",)) as run:
+        run.set_tags({"seeds": seeds})
+        for seed, path in zip(seeds, files):
+            model = load_checkpoint(path, map_location=cfg.device).eval()
+            net_hw = (model.config.height, model.config.width)
+            with torch.no_grad():
+                r = evaluate_model(model_disparity(model), sets, cfg, net_hw)
+            headlines.append(r.headline)
+            details[f"seed{seed}"] = r.details
+            for name, items in r.per_image.items():
+                rows.setdefault(name, []).extend({"seed": seed, **row} for row in items)
+            kept = r.kept if kept is None else kept
+            print(f"evaluate[{args.variant}] seed {seed}: " + summary_line(r.headline))
+        doc = metrics_document(args.variant, seeds, headlines)
+        sizes = {name: len(s) for name, s in sets.items()}
+        write_json(out_dir / "details.json", {"variant": args.variant, "model_dir": str(model_dir),
+                                              "test_set_sizes": sizes, "settings": vars(cfg) | {
+                                                  "datasets": list(cfg.datasets)}, "seeds": details})
+        for name, items in rows.items():
+            write_text(out_dir / f"{name}.csv", rows_csv(items))
+        save_npz(out_dir / "figures.npz", **(kept or {}))
+        write_json(Path(args.metrics) / f"{args.variant}.json", doc)
+        run.log_metrics({k: v for k, v in doc.items() if k != "variant"})
+        if run.active:  # what the variant was trained with, for comparing runs in MLflow
+            trained = read_checkpoint(files[0])["params"]
+            run.log_params({"test_set_sizes": sizes, "trained": {k: trained.get(k) for k in TRAINED_KEYS}})
+        run.log_artifact(Path(args.metrics) / f"{args.variant}.json")
+        run.log_artifact(out_dir / "details.json")
+    print(f"evaluate[{args.variant}]: {len(seeds)} seed(s), test sets {sizes}, mean over seeds: "
+          f"{summary_line(doc)}; {time.perf_counter() - t0:.0f} s → {args.metrics}/{args.variant}.json")
+
+
+def summary_line(h: dict) -> str:
+    parts = [f"{g} AbsRel {h[g]['abs_rel']:.3f} δ1 {h[g]['a1']:.3f}" for g in ("nyu", "nyu_pp", "sevenscenes",
+                                                                            "campus") if g in h]
+    return ", ".join(parts + [f"{h['ms']:.1f} ms ({h['ms_pp']:.1f} ms PP)"])
+
+
+if __name__ == "__main__":
+    main(sys.argv)

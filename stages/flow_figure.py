@@ -1,0 +1,46 @@
+"""DVC stage `flow_figure`: the paper's Figure 8 for our flow models — RGB | pretrained | fine-tuned
+`full` | fine-tuned `patch` | ground truth — on a few held-out synthetic pairs.
+
+Usage: python stages/flow_figure.py [params.yaml]
+
+Pairs: `flow_figure.pairs` of the flow_finetune EPE test pairs (spread evenly); writes `flow_figure.out`.
+"""
+
+from __future__ import annotations
+
+import sys
+
+from f2depth import params as P
+from f2depth.data.prepared import PreparedSet
+from f2depth.flow.checkpoint import load_flow_model
+from f2depth.flow.figures import comparison_rows, render_flow_comparison
+from f2depth.flow.finetune_data import gt_pairs, split_pairs
+
+TITLES = {"full": "Fine-tuned full", "patch": "Fine-tuned patch (F²Depth)"}
+
+
+def main(argv: list[str]) -> None:
+    p = P.load(argv[1] if len(argv) > 1 else P.DEFAULT_PARAMS)
+    device = P.resolve_device(str(P.get(p, "device", "auto")))
+    ds = PreparedSet(P.get(p, "data.prepared"))
+    split = split_pairs(ds, int(P.get(p, "flow_finetune.holdout_scenes")))
+    pairs = list(gt_pairs(ds, split.test, limit=int(P.get(p, "flow_figure.pairs"))))
+    if not pairs:
+        raise SystemExit(f"{ds.root}: no held-out pairs with ground truth to draw; the figure needs the "
+                         "synthetic data (data_source: synthetic) and flow_finetune.holdout_scenes >= 1")
+    template = str(P.get(p, "flow_finetune.model"))
+    models = {"Pretrained": load_flow_model(P.get(p, "flow_finetune.pretrained"))}
+    for loss in ("full", "patch"):
+        if loss in P.get(p, "flow_finetune.losses"):
+            models[TITLES[loss]] = load_flow_model(template.format(loss=loss))
+    out = P.get(p, "flow_figure.out")
+    rows = comparison_rows(models, pairs, device)
+    render_flow_comparison(rows, out)
+    for row in rows:
+        print(f"flow_figure {row.pair_id}: " + ", ".join(
+            f"{t} EPE {e[0]:.3f}" for t, e in row.epe.items() if e[0] is not None))
+    print(f"flow_figure: {len(rows)} pairs × {len(models)} models → {out}")
+
+
+if __name__ == "__main__":
+    main(sys.argv)

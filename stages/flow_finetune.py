@@ -1,0 +1,135 @@
+"""DVC stage `flow_finetune`: PWC-Lite fine-tuned on the prepared pairs (t, t+1) with F²Depth's patch
+census loss (`patch`) or ARFlow's all-pixel census loss (`full`, Table 6).
+
+Usage: python stages/flow_finetune.py --loss {patch,full} [--params params.yaml]
+
+Starts from `flow_finetune.pretrained`, trains on the pairs of every scene except the last
+`holdout_scenes` scenes with ground truth, and scores EPE (all / non-occluded / low-texture) on the
+held-out pairs after every epoch. Writes `flow_finetune.model` (with {loss}), `<out_dir>/<loss>/history.csv`
+(DVC plots), `<out_dir>/<loss>.json` (EPE of the pretrained and the fine-tuned model on the held-out
+test pairs and on up to `eval_train_pairs` training pairs, zero-flow baseline, seconds) and mirrors it
+to MLflow. The training state goes to `<resume_dir>/<loss>.pt` after every epoch and is removed at the end.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import hashlib
+import io
+import sys
+import time
+from pathlib import Path
+
+import torch
+
+from f2depth import params as P
+from f2depth import tracking
+from f2depth.data.prepared import PreparedSet
+from f2depth.flow.checkpoint import load_flow_model, save_flow_model
+from f2depth.flow.finetune import HISTORY_COLUMNS, FinetuneConfig, evaluate_epe, finetune, zero_flow_epe
+from f2depth.flow.finetune_data import FlowPairs, gt_pairs, split_pairs
+from f2depth.flow.patch_loss import PIXEL_SETS
+from f2depth.io import write_json, write_text
+from f2depth.keypoints.store import KeypointFile
+
+EPE_KEYS = ("epe_all", "epe_noc", "epe_low_texture", "epe_occ", "pairs")
+
+
+def sha256(path: str | Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for chunk in iter(lambda: fh.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def write_history(path: Path, history: list[dict]) -> None:
+    buf = io.StringIO()
+    writer = csv.writer(buf, lineterminator="\n")
+    writer.writerow(HISTORY_COLUMNS)
+    for row in history:
+        writer.writerow(["" if row.get(k) is None else row[k] for k in HISTORY_COLUMNS])
+    write_text(path, buf.getvalue())
+
+
+def _epe(d: dict) -> dict:
+    return {k: d.get(k) for k in EPE_KEYS}
+
+
+def main(argv: list[str]) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--loss", choices=PIXEL_SETS, default="patch")
+    ap.add_argument("--params", default=str(P.DEFAULT_PARAMS))
+    args = ap.parse_args(argv[1:])
+    p = P.load(args.params)
+    s, loss = "flow_finetune.", args.loss
+    device = P.resolve_device(str(P.get(p, "device", "auto")))
+    cfg = FinetuneConfig(loss=loss, epochs=int(P.get(p, s + "epochs")),
+                         batch_size=int(P.get(p, s + "batch_size")), lr=float(P.get(p, s + "lr")),
+                         patch_spacing=int(P.get(p, s + "patch_spacing")),
+                         smooth_weight=float(P.get(p, "lambda_flow_smooth")),
+                         augment=bool(P.get(p, s + "augment")), seed=int(P.get(p, "seed")),
+                         occlusion=str(P.get(p, s + "occlusion", "forward_backward")))
+    ds = PreparedSet(P.get(p, "data.prepared"))
+    kp_path = Path(P.get(p, "data.keypoints")) / "train.npz"
+    keypoints = KeypointFile(kp_path) if loss == "patch" else None
+    split = split_pairs(ds, int(P.get(p, s + "holdout_scenes")))
+    pretrained = Path(P.get(p, s + "pretrained"))
+    if not pretrained.is_file():
+        raise SystemExit(f"{pretrained}: pretrained flow model not found; run `dvc repro flow_pretrain` or "
+                         "point flow_finetune.pretrained at a models/flow_*.pt or an ARFlow *.pth.tar")
+    model_path = Path(str(P.get(p, s + "model")).format(loss=loss))
+    out_dir = Path(P.get(p, s + "out_dir"))
+    history_csv, metrics_json = out_dir / loss / "history.csv", out_dir / f"{loss}.json"
+    resume_path = Path(P.get(p, s + "resume_dir")) / f"{loss}.pt"
+    train_limit = int(P.get(p, s + "eval_train_pairs"))
+
+    torch.manual_seed(cfg.seed)
+    t0 = time.perf_counter()
+    model = load_flow_model(pretrained)
+    test = list(gt_pairs(ds, split.test))
+    before = {"test": _epe(evaluate_epe(model, test, device)),
+              "train": _epe(evaluate_epe(model, gt_pairs(ds, split.train, train_limit), device))}
+    fingerprint = {"pretrained_sha256": sha256(pretrained),
+                   "keypoints_sha256": sha256(kp_path) if keypoints is not None else None}
+    with tracking.stage_run("flow_finetune", p, variant=loss) as run:
+        def on_epoch(epoch: int, row: dict, history: list[dict]) -> None:
+            write_history(history_csv, history)
+            run.log_metrics({k: v for k, v in row.items() if k != "epoch"}, step=epoch)
+
+        info = finetune(model, FlowPairs(ds, split.train, keypoints), cfg, test, resume_path, fingerprint,
+                        device, int(P.get(p, s + "workers", 0)), on_epoch)
+        write_history(history_csv, info["history"])
+        save_flow_model(model_path, model,
+                        config={"source": "flow_finetune", "loss": loss, "pretrained": str(pretrained),
+                                "train_scenes": split.train_scenes, "test_scenes": split.test_scenes},
+                        params={**P.get(p, "flow_finetune"), "lambda_flow_smooth": cfg.smooth_weight,
+                                "seed": cfg.seed})
+        after = {"test": _epe(evaluate_epe(model, test, device)),
+                 "train": _epe(evaluate_epe(model, gt_pairs(ds, split.train, train_limit), device))}
+        metrics = {"loss": loss, "ground_truth": bool(test), "test_scenes": split.test_scenes,
+                   "test_on_train": split.test_on_train, "train_pairs": len(split.train),
+                   "test_pairs": len(split.test), "pretrained": before, "finetuned": after,
+                   "zero_flow": {"test": _epe(zero_flow_epe(test))}, "epochs": cfg.epochs,
+                   "epochs_run": info["epochs_run"], "resumed_from": info["resumed_from"],
+                   "seconds": round(time.perf_counter() - t0, 1)}
+        write_json(metrics_json, metrics)
+        run.log_metrics({"final": {"pretrained": before, "finetuned": after}})
+        run.log_artifact(model_path)
+        run.log_artifact(history_csv)
+        run.log_artifact(metrics_json)
+    resume_path.unlink(missing_ok=True)
+    for name, m in (("pretrained", before["test"]), ("fine-tuned", after["test"])):
+        print(f"flow_finetune[{loss}] {name}: EPE all {_fmt(m['epe_all'])}, noc {_fmt(m['epe_noc'])}, "
+              f"low-texture {_fmt(m['epe_low_texture'])} on {m['pairs']} test pairs")
+    print(f"flow_finetune[{loss}]: {len(split.train)} training pairs, {info['epochs_run']} epochs in "
+          f"{metrics['seconds']} s → {model_path}")
+
+
+def _fmt(x: float | None) -> str:
+    return "n/a" if x is None else f"{x:.3f}"
+
+
+if __name__ == "__main__":
+    main(sys.argv)

@@ -1,0 +1,57 @@
+"""DVC stage `tables`: the paper's tables and figures from the evaluation of every variant.
+
+Usage: python stages/tables.py [--params params.yaml] [--metrics metrics/evaluate] [--eval reports/eval]
+       [--train-metrics metrics/train_depth] [--out reports]
+
+Reads metrics/evaluate/<variant>.json and reports/eval/<variant>/ for every variant under `variants`,
+the flow fine-tuning metrics (`flow_finetune.out_dir`/<loss>.json, EPE for Table 6) and the training
+histories. Writes reports/tables/<table>.{md,csv,tex} (Table 1, 5, 6, 7-Scenes and Campus per scene,
+inference time, all variants), reports/figures/depth/*.png (qualitative grids, error maps, training
+curves) and reports/README.md (the index), and attaches them to the MLflow child run `tables`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from f2depth import params as P
+from f2depth import tracking
+from f2depth.report.build import write_report
+from f2depth.report.paper_tables import build_tables
+from f2depth.report.results import flow_epe, load_variants, read_history, read_json
+
+
+def main(argv: list[str]) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--params", default=str(P.DEFAULT_PARAMS))
+    ap.add_argument("--metrics", default="metrics/evaluate", help="folder of <variant>.json")
+    ap.add_argument("--eval", default="reports/eval", help="folder of <variant>/details.json, figures.npz")
+    ap.add_argument("--train-metrics", default="metrics/train_depth", help="folder of <variant>/history.csv")
+    ap.add_argument("--out", default="reports", help="report root: tables/, figures/depth/, README.md")
+    args = ap.parse_args(argv[1:])
+    p = P.load(args.params)
+    variants = P.get(p, "variants")
+    results = load_variants(list(variants), args.metrics, args.eval)
+    flow_dir = Path(P.get(p, "flow_finetune.out_dir"))
+    losses = [str(x) for x in P.get(p, "flow_finetune.losses")]
+    flow = {loss: read_json(flow_dir / f"{loss}.json", f"run `dvc repro flow_finetune@{loss}`")
+            for loss in losses}
+    epe = {v: flow_epe(spec.get("flow_model"), flow, str(P.get(p, "flow_finetune.pretrained")),
+                       str(P.get(p, "flow_finetune.model"))) for v, spec in variants.items()}
+    depth_hist = {v: read_history(Path(args.train_metrics) / v / "history.csv") for v in variants}
+    flow_hist = {loss: read_history(flow_dir / loss / "history.csv") for loss in losses}
+    tables = build_tables(results, epe)
+    with tracking.stage_run("tables", p, sections=("evaluate", "variants")) as run:
+        written = write_report(tables, results, depth_hist, flow_hist, args.out)
+        out = Path(args.out)
+        run.log_artifact(out / "tables", "tables")
+        run.log_artifact(out / "figures" / "depth", "figures")
+        run.log_artifact(written["readme"])
+    print(f"tables: {len(tables)} tables ({', '.join(t.stem for t in tables)}) and "
+          f"{len(written['figures'])} figures for {len(results)} variants → {written['readme']}")
+
+
+if __name__ == "__main__":
+    main(sys.argv)

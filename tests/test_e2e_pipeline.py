@@ -1,0 +1,135 @@
+"""End to end: the repository's own dvc.yaml, params.yaml, configs/, stages/ and f2depth/ copied into a fresh
+git + DVC repository, params cut to a tiny configuration, then `dvc repro` (every stage must run, the
+tables must exist) and a second `dvc repro` (everything must be up to date).
+
+Marked ``e2e`` (select with ``-m e2e``, leave out with ``-m "not e2e"``). It runs `dvc` from the venv
+(the directory of the running Python) as a subprocess, with MLflow mirroring off; about 2-3 minutes on a
+loaded 2-core machine.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+BIN = Path(sys.executable).parent
+COPY = ("dvc.yaml", "params.yaml", "configs", "stages", "f2depth")
+
+#: dotted key → value: tiny data (480×640 frames are fixed by the formats, so few of them), one epoch,
+#: small networks' inputs (multiples of 64 for PWC-Lite), one timing run
+TINY: dict[str, object] = {
+    "synth.workers": 2,
+    "synth.supersample": 1,
+    "synth.nyu_raw.scenes": 2,
+    "synth.nyu_raw.frames": 7,
+    "synth.nyu_labeled.images": 4,
+    "synth.nyu_labeled.test_fraction": 0.5,
+    "synth.sevenscenes.scenes": 1,
+    "synth.sevenscenes.frames_per_sequence": 2,
+    "synth.campus.scenes": 2,
+    "synth.campus.images_per_scene": 1,
+    "synth.campus.height": 96,
+    "synth.campus.width": 64,
+    "synth.animated.sequences": 2,
+    "synth.animated.frames": 3,
+    "synth.animated.height": 64,
+    "synth.animated.width": 64,
+    "prepare.height": 64,
+    "prepare.width": 64,
+    "prepare.frame_step": 2,
+    "prepare.workers": 1,
+    "keypoints.workers": 1,
+    "keypoints.overlays": 1,
+    "flow_pretrain.height": 64,
+    "flow_pretrain.width": 64,
+    "flow_pretrain.raw_epochs": 1,
+    "flow_pretrain.census_epochs": 1,
+    "flow_pretrain.batch_size": 2,
+    "flow_pretrain.passes": ["clean"],
+    "flow_pretrain.eval_prepared_pairs": 2,
+    "flow_pretrain.figures": 1,
+    "flow_finetune.epochs": 1,
+    "flow_finetune.batch_size": 2,
+    "flow_finetune.eval_train_pairs": 2,
+    "flow_figure.pairs": 1,
+    "train_depth.epochs": 1,
+    "train_depth.batch_size": 2,
+    "train_depth.num_points": 50,
+    "train_depth.val_max_images": 2,
+    "evaluate.timing_height": 64,
+    "evaluate.timing_width": 64,
+    "evaluate.timing_repeats": 1,
+    "evaluate.timing_warmup": 0,
+    "evaluate.figure_images": 1,
+    "evaluate.figure_width": 64,
+    "device": "cpu",
+}
+
+
+def tiny_params(params: dict, overrides: dict[str, object]) -> dict:
+    for dotted, value in overrides.items():
+        node = params
+        *parents, leaf = dotted.split(".")
+        for part in parents:
+            node = node[part]
+        if leaf not in node:
+            raise KeyError(f"params.yaml has no '{dotted}': update TINY in {Path(__file__).name}")
+        node[leaf] = value
+    return params
+
+
+def run(cmd: list[str], cwd: Path, env: dict[str, str], timeout: float = 600) -> subprocess.CompletedProcess:
+    proc = subprocess.run(cmd, cwd=cwd, env=env, capture_output=True, text=True, timeout=timeout)
+    if proc.returncode != 0:
+        raise AssertionError(f"{' '.join(cmd)} failed ({proc.returncode}):\n{proc.stdout[-6000:]}\n"
+                             f"{proc.stderr[-6000:]}")
+    return proc
+
+
+@pytest.mark.e2e
+def test_dvc_repro_runs_every_stage_then_is_up_to_date(tmp_path):
+    repo = tmp_path / "repo"
+    repo.mkdir()
+    ignore = shutil.ignore_patterns("__pycache__", "*.pyc")
+    for name in COPY:
+        src = ROOT / name
+        (shutil.copytree(src, repo / name, ignore=ignore) if src.is_dir() else shutil.copy2(src, repo / name))
+    params = tiny_params(yaml.safe_load((ROOT / "params.yaml").read_text()), TINY)
+    (repo / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False, allow_unicode=True))
+    env = {**os.environ, "PATH": f"{BIN}{os.pathsep}{os.environ.get('PATH', '')}", "F2DEPTH_MLFLOW": "0",
+           "PYTHONPATH": str(repo), "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+    env.pop("DVC_ROOT", None)
+    git = ["git", "-c", "user.name=e2e", "-c", "user.email=e2e@example.invalid"]
+    run(["git", "init", "-q"], repo, env)
+    run([str(BIN / "dvc"), "init", "-q"], repo, env)
+    run([str(BIN / "dvc"), "config", "core.analytics", "false"], repo, env)
+    run(git + ["add", "-A"], repo, env)
+    run(git + ["commit", "-q", "-m", "tiny pipeline"], repo, env)
+
+    first = run([str(BIN / "dvc"), "repro"], repo, env, timeout=900)
+    stages = yaml.safe_load((repo / "dvc.lock").read_text())["stages"]
+    expected = {"synth", "prepare", "keypoints", "flow_pretrain", "flow_figure", "tables",
+                *(f"flow_finetune@{loss}" for loss in params["flow_finetune"]["losses"]),
+                *(f"{stage}@{v}" for stage in ("train_depth", "evaluate") for v in params["variants"])}
+    assert expected <= set(stages), sorted(expected - set(stages))
+    for name in expected:
+        assert f"Running stage '{name}'" in first.stdout, name
+    for stem in ("table1_nyu", "table5_losses", "table6_flow", "sevenscenes_scenes", "campus_scenes"):
+        for suffix in (".md", ".csv", ".tex"):
+            assert (repo / "reports" / "tables" / f"{stem}{suffix}").stat().st_size > 0
+    assert (repo / "reports" / "figures" / "depth" / "nyu_qualitative.png").stat().st_size > 0
+    assert (repo / "reports" / "README.md").is_file()
+    for v in params["variants"]:
+        assert (repo / "metrics" / "evaluate" / f"{v}.json").is_file()
+
+    second = run([str(BIN / "dvc"), "repro"], repo, env)
+    assert "Running stage" not in second.stdout
+    status = run([str(BIN / "dvc"), "status"], repo, env)
+    assert "Data and pipelines are up to date" in status.stdout, status.stdout

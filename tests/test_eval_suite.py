@@ -1,0 +1,158 @@
+"""Tests for f2depth.eval.suite: every protocol for one predictor, kept images, seeds, CSV rows.
+
+Known answer: the ground truth of every fake sample is one constant depth per image (NYU, 7-Scenes) or
+per Campus image, and the predictor returns a constant disparity, so after per-image median scaling the
+prediction is exact (AbsRel 0, δ1 1) with and without post-processing.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+from collections import namedtuple
+
+import numpy as np
+import pytest
+import torch
+
+from f2depth.eval import suite
+from f2depth.eval.metrics import METRIC_NAMES
+
+Nyu = namedtuple("Nyu", "index rgb depth scene")
+Seven = namedtuple("Seven", "rgb depth scene seq frame")
+Campus = namedtuple("Campus", "scene image rgb points")
+
+
+def constant(x: torch.Tensor) -> torch.Tensor:
+    return torch.full((x.shape[0], 1, *x.shape[2:]), 0.4)
+
+
+class Frames:
+    """A list of 7-Scenes samples with the loader's ``info``."""
+
+    def __init__(self, items):
+        self.items = items
+
+    def __len__(self):
+        return len(self.items)
+
+    def __getitem__(self, i):
+        return self.items[i]
+
+    def info(self, i):
+        s = self.items[i]
+        return s.scene, s.seq, s.frame
+
+
+def sets():
+    rng = np.random.default_rng(0)
+    nyu = []
+    for i in range(3):
+        depth = np.full((480, 640), 1.5 + i, np.float32)
+        depth[:50, :50] = 0.0  # holes
+        nyu.append(Nyu(i + 1, rng.integers(0, 256, (480, 640, 3), dtype=np.uint8), depth, "room"))
+    seven = Frames([Seven(rng.integers(0, 256, (48, 64, 3), dtype=np.uint8),
+                          np.full((48, 64), 1200 + 100 * k, np.uint16), scene, "seq-01", k)
+                    for scene in ("chess", "fire") for k in range(3)])
+    campus = [Campus(s, f"img{k}", rng.integers(0, 256, (40, 30, 3), dtype=np.uint8),
+                     np.array([[1.0, 2.0, 3.0 + k], [20.0, 30.0, 3.0 + k], [5.0, 9.0, 3.0 + k]]))
+              for s in ("1", "2") for k in range(2)]
+    return {"nyu": nyu, "sevenscenes": seven, "campus": campus}
+
+
+CFG = suite.SuiteConfig(batch_size=2, timing_height=32, timing_width=64, timing_repeats=2, timing_warmup=1,
+                        figure_images=2, figure_width=100)
+
+
+def test_constant_prediction_of_constant_depth_is_perfect_everywhere():
+    r = suite.evaluate_model(constant, sets(), CFG, (32, 64))
+    assert set(r.headline) == {*suite.GROUPS, *suite.TIMING_KEYS}
+    for group in suite.GROUPS:
+        assert set(r.headline[group]) == set(METRIC_NAMES)
+        assert r.headline[group]["abs_rel"] == pytest.approx(0.0, abs=1e-6), group
+        assert r.headline[group]["a1"] == 1.0, group
+    assert r.headline["ms"] > 0 and r.headline["ms_pp"] > 0
+    assert r.details["input_hw"] == [32, 64]
+    assert r.details["nyu"]["count"] == 3 and r.details["timing"]["ms"]["repeats"] == 2
+    assert [row["scene"] for row in r.details["sevenscenes"]["rows"]] == ["chess", "fire", "Average",
+                                                                          "All frames"]
+    # per-image rows: every image, once without and once with PP
+    assert len(r.per_image["nyu"]) == 6 and len(r.per_image["sevenscenes"]) == 12
+    assert len(r.per_image["campus"]) == 8
+    assert [row["post_process"] for row in r.per_image["nyu"]] == [False] * 3 + [True] * 3
+    assert {row["index"] for row in r.per_image["nyu"]} == {1, 2, 3}
+
+
+def test_kept_images_for_figures():
+    r = suite.evaluate_model(constant, sets(), CFG, (32, 64))
+    k = r.kept
+    assert k["nyu_id"].tolist() == ["1", "3"]  # 2 evenly spaced of 3
+    assert k["nyu_rgb"].shape == (2, 76, 100, 3)  # the 427×561 crop shrunk to width 100
+    assert k["nyu_rgb"].dtype == np.uint8
+    assert k["nyu_gt"].shape == k["nyu_pred"].shape == (2, 76, 100)
+    np.testing.assert_allclose(k["nyu_pred"][1], 3.5, rtol=1e-5)  # median-scaled onto gt
+    assert k["sevenscenes_id"].tolist() == ["chess/seq-01/1", "fire/seq-01/1"]  # middle frame per scene
+    assert k["sevenscenes_rgb"].shape == (2, 48, 64, 3)  # narrower than figure_width: unchanged
+
+
+def test_datasets_subset_and_own_size():
+    cfg = suite.SuiteConfig(height=64, width=96, datasets=("campus",), timing_height=32, timing_width=32,
+                            timing_repeats=1, timing_warmup=0, figure_images=0)
+    r = suite.evaluate_model(constant, sets(), cfg, (32, 64))
+    assert set(r.headline) == {"campus", "campus_pp", "ms", "ms_pp"}
+    assert r.details["input_hw"] == [64, 96] and r.kept == {}
+    assert r.details["campus"]["settings"]["height"] == 64
+
+
+def test_config_errors():
+    with pytest.raises(ValueError, match="unknown test sets \\['kitti'\\]"):
+        suite.SuiteConfig(datasets=("nyu", "kitti"))
+    with pytest.raises(ValueError, match="both evaluate.height and evaluate.width"):
+        suite.SuiteConfig(height=288)
+    with pytest.raises(ValueError, match="unknown NYU crop"):
+        suite.SuiteConfig(nyu_crop="eigne")
+    with pytest.raises(ValueError, match="'nyu' is listed in evaluate.datasets but was not loaded"):
+        suite.evaluate_model(constant, {}, suite.SuiteConfig(datasets=("nyu",)), (32, 32))
+
+
+def test_spread_and_limit():
+    assert suite.spread(10, None) == list(range(10))
+    assert suite.spread(10, 3) == [0, 4, 9] or suite.spread(10, 3) == [0, 5, 9]
+    assert suite.spread(3, 5) == [0, 1, 2]
+    data = list(range(100, 110))
+    sub = suite.limit(data, 2)
+    assert len(sub) == 2 and list(sub) == [100, 109] and sub[1] == 109
+    assert suite.limit(data, None) is data
+    with pytest.raises(ValueError):
+        suite.spread(10, 0)
+
+
+def test_mean_over_seeds_and_metrics_document():
+    a = {"nyu": {"abs_rel": 0.2, "a1": 0.7}, "ms": 10.0}
+    b = {"nyu": {"abs_rel": 0.4, "a1": 0.9}, "ms": 20.0}
+    doc = suite.metrics_document("full", [3, 1], [a, b])
+    assert doc["nyu"] == pytest.approx({"abs_rel": 0.3, "a1": 0.8}) and doc["ms"] == 15.0
+    assert doc["n_seeds"] == 2 and list(doc["per_seed"]) == ["seed3", "seed1"]
+    assert doc["per_seed"]["seed1"] == b and doc["variant"] == "full"
+    with pytest.raises(ValueError, match="2 seeds but 1 results"):
+        suite.metrics_document("full", [0, 1], [a])
+
+
+def test_rows_csv_round_trip():
+    rows = [{"seed": 0, "post_process": False, "abs_rel": 0.1 + 0.2}, {"seed": 1, "abs_rel": 1 / 3, "x": "a"}]
+    back = list(csv.DictReader(io.StringIO(suite.rows_csv(rows))))
+    assert list(back[0]) == ["seed", "post_process", "abs_rel", "x"]
+    assert float(back[0]["abs_rel"]) == 0.1 + 0.2 and float(back[1]["abs_rel"]) == 1 / 3
+    assert back[1]["post_process"] == "" and back[0]["x"] == ""
+
+
+def test_model_disparity_is_inverse_depth():
+    from f2depth.depth import DepthModel, DepthModelConfig
+
+    torch.manual_seed(0)
+    model = DepthModel(DepthModelConfig(64, 64)).eval()
+    x = torch.rand(1, 3, 64, 64)
+    with torch.no_grad():
+        disp = suite.model_disparity(model)(x)
+        depth = model.predict_depth(x)
+    torch.testing.assert_close(disp * depth, torch.ones_like(depth))

@@ -1,0 +1,84 @@
+"""Colour jitter and flips of the flow fine-tuning (f2depth.flow.augment)."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from f2depth.flow.augment import (
+    AugmentConfig,
+    adjust,
+    augment_batch,
+    color_jitter,
+    hflip_flow,
+    hflip_keypoints,
+    hsv_to_rgb,
+    rgb_to_hsv,
+)
+from f2depth.flow.patch_loss import FinetuneLossConfig, finetune_loss, pad_keypoints
+from f2depth.flow.warp import warp
+
+
+def rand_img(b=2, h=12, w=16, seed=0):
+    return torch.rand(b, 3, h, w, generator=torch.Generator().manual_seed(seed))
+
+
+def test_hsv_round_trip_and_hue_rotation():
+    img = rand_img()
+    assert torch.allclose(hsv_to_rgb(rgb_to_hsv(img)), img, atol=1e-5)
+    red = torch.zeros(3, 2, 2)
+    red[0] = 1
+    green = adjust(red, "hue", 1 / 3)
+    assert torch.allclose(green[1], torch.ones(2, 2), atol=1e-5) and green[0].abs().max() < 1e-5
+    assert torch.allclose(adjust(img, "hue", 0.0), img, atol=1e-5)
+    grey = adjust(img, "saturation", 0.0)
+    assert torch.allclose(grey[:, 0], grey[:, 1]) and torch.allclose(grey[:, 1], grey[:, 2])
+    assert torch.allclose(adjust(img, "brightness", 0.5), img * 0.5)
+
+
+def test_jitter_shares_parameters_between_frames_and_is_seeded():
+    img = rand_img(4)
+    a1, a2 = color_jitter([img, img.clone()], torch.Generator().manual_seed(3), AugmentConfig(color_p=1.0))
+    assert torch.equal(a1, a2) and not torch.allclose(a1, img)
+    b1, _ = color_jitter([img, img], torch.Generator().manual_seed(3), AugmentConfig(color_p=1.0))
+    assert torch.equal(a1, b1)
+    assert a1.min() >= 0 and a1.max() <= 1
+    same, _ = color_jitter([img, img], torch.Generator().manual_seed(3), AugmentConfig(color_p=0.0))
+    assert torch.equal(same, img)
+
+
+def test_flip_keeps_the_loss_of_a_consistent_pair():
+    """Mirroring frames, keypoints and flow (u negated) describes the same motion: same loss."""
+    h, w = 20, 28
+    img2 = torch.nn.functional.avg_pool2d(rand_img(1, h + 2, w + 2, 5), 3, 1)
+    flow = torch.zeros(1, 2, h, w)
+    flow[:, 0] = 1.5
+    flow[:, 1] = -0.5
+    flow[:, 0, :, 10:] = 2.5
+    img1 = warp(img2, flow)
+    kp, mask = pad_keypoints([torch.tensor([[5, 5], [14, 9], [20, 12]])])
+    cfg = FinetuneLossConfig()
+    loss, _ = finetune_loss(flow, -flow, img1, img2, kp, mask, cfg)
+    fflow = hflip_flow(flow)
+    assert torch.equal(fflow[0, 0, :, w - 1], -flow[0, 0, :, 0])
+    loss_f, _ = finetune_loss(fflow, -fflow, img1.flip(-1), img2.flip(-1), hflip_keypoints(kp, w), mask, cfg)
+    assert loss_f == pytest.approx(float(loss), rel=1e-4)
+
+
+def test_augment_batch_flips_images_and_keypoints_together():
+    img1, img2 = rand_img(8, seed=1), rand_img(8, seed=2)
+    kp, mask = pad_keypoints([torch.tensor([[1, 2], [15, 11]])] * 8)
+    batch = {"img1": img1, "img2": img2, "keypoints": kp, "keypoint_mask": mask}
+    out = augment_batch(batch, torch.Generator().manual_seed(0))
+    flipped = out["flipped"]
+    assert flipped.any() and not flipped.all()
+    for i in range(8):
+        ref1 = img1[i].flip(-1) if flipped[i] else img1[i]
+        assert torch.equal(out["img1"][i], ref1)
+        x, y = kp[i, 1].tolist()
+        assert out["keypoints"][i, 1].tolist() == ([16 - 1 - x, y] if flipped[i] else [x, y])
+        x2, y2 = out["keypoints"][i, 1].tolist()
+        assert torch.equal(out["img1"][i][:, y2, x2], img1[i][:, y, x])  # the keypoint stays on its pixel
+    assert out["net1"].shape == img1.shape and torch.equal(batch["img1"], img1)  # input left untouched
+    again = augment_batch(batch, torch.Generator().manual_seed(0))
+    assert torch.equal(again["net2"], out["net2"])

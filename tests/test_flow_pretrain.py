@@ -1,0 +1,153 @@
+"""Pretraining (f2depth.flow.pretrain), scoring (f2depth.flow.validate) and the `flow_pretrain` stage on a
+tiny Sintel-layout set made in tmp_path."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import math
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import torch
+import yaml
+
+from f2depth.data.sintel import list_pairs, write_flo
+from f2depth.flow import PWCLite, load_flow_model
+from f2depth.flow.pretrain import PretrainConfig, _load_resume, clear_resume, pretrain
+from f2depth.flow.validate import evaluate_sintel
+
+HW = (40, 56)
+STAGE = Path(__file__).resolve().parents[1] / "stages" / "flow_pretrain.py"
+
+
+def _texture(rng: np.random.Generator, hw) -> np.ndarray:
+    coarse = rng.uniform(0, 255, (hw[0] // 4 + 2, hw[1] // 4 + 2, 3)).astype(np.float32)
+    return cv2.resize(coarse, (hw[1] + 8 * 4, hw[0] + 8 * 4), interpolation=cv2.INTER_CUBIC).clip(0, 255)
+
+
+def make_set(root: Path, seqs=("a_1", "b_1", "c_1"), frames=3) -> Path:
+    """Sequences panning over a texture by (2, 1) px per frame, with exact .flo and occlusions."""
+    t = root / "training"
+    for s, seq in enumerate(seqs):
+        big = _texture(np.random.default_rng(s), HW)
+        for i in range(frames):
+            crop = big[16 - i: 16 - i + HW[0], 16 - 2 * i: 16 - 2 * i + HW[1]].astype(np.uint8)
+            for p in ("clean", "final"):
+                path = t / p / seq / f"frame_{i + 1:04d}.png"
+                path.parent.mkdir(parents=True, exist_ok=True)
+                cv2.imwrite(str(path), crop)
+            if i + 1 < frames:
+                write_flo(t / "flow" / seq / f"frame_{i + 1:04d}.flo",
+                          np.broadcast_to(np.float32([2.0, 1.0]), (*HW, 2)).copy())
+                occ = t / "occlusions" / seq / f"frame_{i + 1:04d}.png"
+                occ.parent.mkdir(parents=True, exist_ok=True)
+                cv2.imwrite(str(occ), np.zeros(HW, np.uint8))
+    return root
+
+
+TINY = PretrainConfig(height=64, width=64, raw_epochs=1, census_epochs=1, batch_size=2, lr=1e-4, seed=0)
+
+
+def test_pretrain_runs_both_phases_and_resumes_identically(tmp_path):
+    pairs = list_pairs(make_set(tmp_path / "s"), ("clean",), ["a_1"])  # 2 pairs: one step per epoch
+    torch.manual_seed(0)
+    straight = PWCLite()
+    info = pretrain(straight, pairs, TINY, tmp_path / "r1", progress=False)
+    assert info["epochs_run"] == 2 and [h["census"] for h in info["history"]] == [0.0, 1.0]
+    assert all(math.isfinite(v) for h in info["history"] for v in h.values())
+
+    class Crash(RuntimeError):
+        pass
+
+    def crash(epoch, stats):
+        if epoch == 1:
+            raise Crash
+
+    torch.manual_seed(0)
+    model = PWCLite()
+    with pytest.raises(Crash):
+        pretrain(model, pairs, TINY, tmp_path / "r2", on_epoch=crash, progress=False)
+    assert (tmp_path / "r2" / "last.pt").is_file()
+    resumed = PWCLite()  # different initial weights: they come from the resume file
+    info = pretrain(resumed, pairs, TINY, tmp_path / "r2", progress=False)
+    assert info["resumed_from"] == 1 and info["epochs_run"] == 1
+    for k, v in straight.state_dict().items():
+        assert torch.allclose(v, resumed.state_dict()[k], atol=1e-5), k
+    # another configuration or data set does not resume from a foreign state
+    state_file = tmp_path / "r2" / "last.pt"
+    assert _load_resume(state_file, TINY, len(pairs)) is not None
+    assert _load_resume(state_file, PretrainConfig(**{**vars(TINY), "lr": 2e-4}), len(pairs)) is None
+    assert _load_resume(state_file, TINY, len(pairs) + 1) is None
+    clear_resume(tmp_path / "r2")
+    assert not (tmp_path / "r2").exists()
+
+
+def test_evaluate_sintel_scores_model_and_zero_flow(tmp_path):
+    pairs = list_pairs(make_set(tmp_path / "s"), ("clean",), ["c_1"], require_flow=True)
+    res = evaluate_sintel(PWCLite().eval(), pairs, (64, 64), figure_dir=tmp_path / "fig", figures=1)
+    assert res["pairs"] == 2
+    assert res["zero_flow"]["epe_all"] == pytest.approx(5**0.5, rel=1e-5)
+    assert res["zero_flow"]["pixels_all"] == 2 * HW[0] * HW[1] and res["zero_flow"]["epe_occ"] is None
+    assert math.isfinite(res["model"]["epe_all"])
+    assert len(list((tmp_path / "fig").glob("*.png"))) == 1
+
+
+def _run_stage(params_path: Path) -> None:
+    spec = importlib.util.spec_from_file_location("flow_pretrain_stage", STAGE)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    module.main(["flow_pretrain.py", str(params_path)])
+
+
+def test_stage_end_to_end(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("F2DEPTH_MLFLOW", "0")
+    make_set(tmp_path / "data" / "animated")
+    params = {
+        "seed": 0, "device": "cpu",
+        "data": {"sintel": "data/animated", "prepared": "data/prepared"},
+        "flow_pretrain": {"checkpoint": None, "source": "synthetic", "height": 64, "width": 64,
+                          "raw_epochs": 1, "census_epochs": 1, "batch_size": 4, "lr": 1e-4, "holdout": 1,
+                          "passes": ["clean", "final"], "eval_prepared": False, "eval_prepared_pairs": 4,
+                          "figures": 1, "figure_dir": "reports/flow", "model": "models/flow_pretrained.pt",
+                          "resume_dir": "tmp/flow_pretrain"},
+    }
+    (tmp_path / "params.yaml").write_text(yaml.safe_dump(params))
+    _run_stage(tmp_path / "params.yaml")
+    metrics = json.loads((tmp_path / "metrics" / "flow_pretrain.json").read_text())
+    assert metrics["train_sequences"] == ["a_1", "b_1"] and metrics["heldout_sequences"] == ["c_1"]
+    for key in ("heldout_clean", "heldout_final"):
+        assert metrics[key]["pairs"] == 2
+        assert set(metrics[key]["model"]) >= {"epe_all", "epe_noc", "epe_low_texture"}
+    assert len(metrics["training"]["history"]) == 2
+    model = load_flow_model(tmp_path / "models" / "flow_pretrained.pt")
+    assert isinstance(model, PWCLite)
+    assert len(list((tmp_path / "reports" / "flow").glob("*.png"))) == 2
+    assert not (tmp_path / "tmp" / "flow_pretrain").exists()  # resume state removed after success
+
+
+def test_stage_imports_an_arflow_checkpoint(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("F2DEPTH_MLFLOW", "0")
+    make_set(tmp_path / "data" / "animated")
+    ref = PWCLite()
+    torch.save({"epoch": 7, "state_dict": ref.state_dict()}, tmp_path / "arflow.pth.tar",
+               _use_new_zipfile_serialization=False)
+    params = {
+        "seed": 0, "device": "cpu", "data": {"sintel": "data/animated", "prepared": "data/prepared"},
+        "flow_pretrain": {"checkpoint": "arflow.pth.tar", "source": "synthetic", "height": 64, "width": 64,
+                          "raw_epochs": 1, "census_epochs": 1, "batch_size": 4, "lr": 1e-4, "holdout": 2,
+                          "passes": ["clean"], "eval_prepared": False, "eval_prepared_pairs": None,
+                          "figures": 0, "figure_dir": "reports/flow", "model": "models/flow_pretrained.pt",
+                          "resume_dir": "tmp/flow_pretrain"},
+    }
+    (tmp_path / "params.yaml").write_text(yaml.safe_dump(params))
+    _run_stage(tmp_path / "params.yaml")
+    metrics = json.loads((tmp_path / "metrics" / "flow_pretrain.json").read_text())
+    assert metrics["source"] == "arflow" and "training" not in metrics
+    assert metrics["heldout_sequences"] == ["b_1", "c_1"] and metrics["heldout_clean"]["pairs"] == 4
+    loaded = load_flow_model(tmp_path / "models" / "flow_pretrained.pt")
+    assert all(torch.equal(v, loaded.state_dict()[k]) for k, v in ref.state_dict().items())

@@ -1,0 +1,225 @@
+"""The `tables` stage on hand-written evaluation results: the paper's tables in three formats, with our
+rows (mean ± std over seeds) beside the quoted ones, the flow EPE of Table 6, the figures and the index."""
+
+from __future__ import annotations
+
+import csv
+import importlib.util
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from f2depth.eval.metrics import METRIC_NAMES
+
+ROOT = Path(__file__).resolve().parents[1]
+VARIANTS = ("full", "no_feature", "baseline", "flow_pretrained", "flow_full_ft")
+GROUPS = ("nyu", "nyu_pp", "sevenscenes", "sevenscenes_pp", "campus", "campus_pp")
+PNG = b"\x89PNG\r\n\x1a\n"
+
+
+def metrics(base: float) -> dict:
+    """All eight metrics; AbsRel = base, δ1 = 1 − base, the rest derived."""
+    return {m: (1.0 - base if m == "a1" else base + 0.01 * i) for i, m in enumerate(METRIC_NAMES)}
+
+
+def headline(base: float) -> dict:
+    groups = {g: metrics(base + 0.001 * i) for i, g in enumerate(GROUPS)}
+    return {**groups, "ms": 100 + base, "ms_pp": 200 + base}
+
+
+def seed_details(base: float) -> dict:
+    def scenes(names):
+        return {s: {"mean": metrics(base + 0.01 * k), "std": metrics(0.0), "count": 3 + k}
+                for k, s in enumerate(names)}
+
+    return {
+        "input_hw": [64, 96],
+        "sevenscenes_pp": {"scenes": scenes(["chess", "fire"]), "average": metrics(base + 0.005),
+                           "frame_weighted": {"mean": metrics(base), "count": 7}},
+        "campus": {"scenes": scenes(["1", "2"]), "average": metrics(base + 0.005)},
+        "timing": {"ms": {"device": "cpu", "threads": 1, "height": 288, "width": 384},
+                   "ms_pp": {"device": "cpu", "threads": 1, "height": 288, "width": 384}},
+    }  # fmt: skip
+
+
+def write_inputs(root: Path) -> Path:
+    """metrics/evaluate, reports/eval, flow metrics and histories for every variant, two seeds each:
+    variant i, seed s has base AbsRel 0.1 + 0.01·i + 0.002·s."""
+    rng = np.random.default_rng(0)
+    for i, v in enumerate(VARIANTS):
+        bases = {s: 0.1 + 0.01 * i + 0.002 * s for s in (0, 1)}
+        per_seed = {f"seed{s}": headline(b) for s, b in bases.items()}
+        doc = {**headline(0.1 + 0.01 * i + 0.001), "n_seeds": 2, "per_seed": per_seed, "variant": v}
+        (root / "metrics" / "evaluate").mkdir(parents=True, exist_ok=True)
+        (root / "metrics" / "evaluate" / f"{v}.json").write_text(json.dumps(doc))
+        out = root / "reports" / "eval" / v
+        out.mkdir(parents=True)
+        (out / "details.json").write_text(json.dumps(
+            {"variant": v, "seeds": {f"seed{s}": seed_details(b) for s, b in bases.items()}}))
+        gt = rng.uniform(1, 5, (2, 24, 32)).astype(np.float32)
+        gt[:, :3, :3] = 0.0
+        kept = {}
+        for prefix in ("nyu", "sevenscenes"):
+            kept |= {f"{prefix}_id": np.array(["1", "7"]),
+                     f"{prefix}_rgb": rng.integers(0, 256, (2, 24, 32, 3), dtype=np.uint8),
+                     f"{prefix}_gt": gt, f"{prefix}_pred": gt * (1.0 + 0.05 * i)}
+        np.savez(out / "figures.npz", **kept)
+        hist = root / "metrics" / "train_depth" / v
+        hist.mkdir(parents=True)
+        (hist / "history.csv").write_text("epoch,total,val_abs_rel,val_a1\n0,,0.3,0.5\n1,0.9,0.25,0.6\n"
+                                          "2,0.8,0.2,0.65\n")
+    flow = root / "metrics" / "flow_finetune"
+    for loss, ft in (("patch", 1.5), ("full", 2.5)):
+        (flow / loss).mkdir(parents=True)
+        (flow / f"{loss}.json").write_text(json.dumps({
+            "pretrained": {"test": {"epe_all": 4.0, "epe_noc": 3.5, "epe_low_texture": 6.0}},
+            "finetuned": {"test": {"epe_all": ft, "epe_noc": ft - 0.2, "epe_low_texture": ft + 1}}}))
+        (flow / loss / "history.csv").write_text(
+            f"epoch,loss,epe_all,epe_low_texture\n0,,4.0,6.0\n1,0.5,{ft},{ft + 1}\n")
+    params = {
+        "variants": {
+            "full": {"flow_model": "models/flow_patch.pt"},
+            "no_feature": {"flow_model": "models/flow_patch.pt"},
+            "baseline": {"flow_model": None}, "flow_pretrained": {"flow_model": "models/flow_pretrained.pt"},
+            "flow_full_ft": {"flow_model": "models/flow_full.pt"}},
+        "flow_finetune": {"losses": ["patch", "full"], "out_dir": str(flow),
+                          "pretrained": "models/flow_pretrained.pt", "model": "models/flow_{loss}.pt"},
+        "evaluate": {"nyu_gt": "depths"},
+    }  # fmt: skip
+    path = root / "params.yaml"
+    path.write_text(yaml.safe_dump(params, sort_keys=False))
+    return path
+
+
+def run(root: Path) -> Path:
+    spec = importlib.util.spec_from_file_location("tables_stage", ROOT / "stages" / "tables.py")
+    stage = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(stage)
+    stage.main(["tables.py", "--params", str(root / "params.yaml"),
+                "--metrics", str(root / "metrics" / "evaluate"), "--eval", str(root / "reports" / "eval"),
+                "--train-metrics", str(root / "metrics" / "train_depth"), "--out", str(root / "reports")])
+    return root / "reports"
+
+
+def read_csv(path: Path) -> list[dict]:
+    with path.open(newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+@pytest.fixture(scope="module")
+def reports(tmp_path_factory):
+    """One stage run shared by the read-only checks below."""
+    root = tmp_path_factory.mktemp("tables")
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("F2DEPTH_MLFLOW", "0")
+        write_inputs(root)
+        return run(root)
+
+
+def test_every_table_in_three_formats(reports):
+    stems = ("table1_nyu", "table5_losses", "table6_flow", "sevenscenes_scenes", "campus_scenes",
+             "inference_time", "variants_overview")
+    for stem in stems:
+        for suffix in (".md", ".csv", ".tex"):
+            assert (reports / "tables" / f"{stem}{suffix}").stat().st_size > 100, stem + suffix
+    tex = (reports / "tables" / "table1_nyu.tex").read_text()
+    assert r"\begin{tabular}" in tex and r"\toprule" in tex and r"$^\dagger$" in tex and r"$\pm$" in tex
+
+
+def test_table1_our_rows_beside_quoted_rows(reports):
+    rows = read_csv(reports / "tables" / "table1_nyu.csv")
+    quoted = [r for r in rows if r["quoted"] == "true"]
+    ours = [r for r in rows if r["quoted"] == "false"]
+    assert len(quoted) == 25 and [r["method"] for r in ours] == ["P²Net (ours: baseline)"] * 2 + [
+        "F²Depth (ours: full)"] * 2
+    assert [r["post_process"] for r in ours] == ["false", "true", "false", "true"]
+    full = ours[2]  # full is variant 0: seeds 0.1 and 0.102
+    assert float(full["abs_rel"]) == pytest.approx(0.101)
+    assert float(full["abs_rel_std"]) == pytest.approx(np.std([0.1, 0.102], ddof=1))
+    assert full["abs_rel_n"] == "2" and full["n"] == "2"
+    md = (reports / "tables" / "table1_nyu.md").read_text()
+    assert "| F²Depth † |" in md and "| F²Depth (ours: full) |" in md and "0.101 ± 0.001" in md
+    assert "† quoted from the paper" in md and "n = 2 seeds" in md
+
+
+def test_table5_losses_ablation(reports):
+    rows = read_csv(reports / "tables" / "table5_losses.csv")
+    ours = [(r["variant"], r["rigid"], r["feature"], r["post_process"])
+            for r in rows if r["quoted"] == "false"]
+    assert ours == [("baseline", "false", "false", "false"), ("no_feature", "true", "false", "false"),
+                    ("full", "true", "true", "false"), ("baseline", "false", "false", "true"),
+                    ("no_feature", "true", "false", "true"), ("full", "true", "true", "true")]
+    assert sum(r["quoted"] == "true" for r in rows) == 6
+
+
+def test_table6_flow_epe_comes_from_the_flow_network_each_variant_used(reports):
+    table = read_csv(reports / "tables" / "table6_flow.csv")
+    rows = {r["variant"]: r for r in table if r["quoted"] == "false"}
+    assert list(rows) == ["flow_pretrained", "flow_full_ft", "full"]
+    assert float(rows["flow_pretrained"]["epe_all"]) == 4.0
+    assert float(rows["flow_pretrained"]["epe_low_texture"]) == 6.0
+    assert float(rows["flow_full_ft"]["epe_all"]) == 2.5 and float(rows["full"]["epe_all"]) == 1.5
+    assert float(rows["full"]["epe_low_texture"]) == 2.5
+
+
+def test_sevenscenes_and_campus_per_scene(reports):
+    rows = read_csv(reports / "tables" / "sevenscenes_scenes.csv")
+    ours = [r for r in rows if r["quoted"] == "false"]
+    assert [r["scene"] for r in ours] == ["Chess", "Fire", "Average (frame-weighted, as the paper)",
+                                          "Mean of scene rows"]
+    assert float(ours[0]["a_abs_rel"]) == pytest.approx(0.101)  # full, chess, mean of two seeds
+    assert float(ours[0]["b_abs_rel"]) == pytest.approx(0.121)  # baseline (variant 2)
+    assert ours[2]["frames"] == "7" and float(ours[3]["a_abs_rel"]) == pytest.approx(0.106)
+    quoted = [r["scene"] for r in rows if r["quoted"] == "true"]
+    assert quoted[0] == "Chess" and quoted[-1] == "Average" and len(quoted) == 8
+    campus = read_csv(reports / "tables" / "campus_scenes.csv")
+    assert [r["scene"] for r in campus if r["quoted"] == "false"] == ["1", "2", "Average of scenes"]
+    assert sum(r["quoted"] == "true" for r in campus) == 19
+
+
+def test_inference_table_and_overview(reports):
+    rows = read_csv(reports / "tables" / "inference_time.csv")
+    assert rows[-1]["quoted"] == "true" and float(rows[-1]["ms"]) == 9.4 and float(rows[-1]["ms_pp"]) == 13.5
+    assert rows[0]["variant"] == "full" and rows[0]["device"] == "cpu, 1 threads"
+    overview = read_csv(reports / "tables" / "variants_overview.csv")
+    assert len(overview) == 10 and set(METRIC_NAMES) <= set(overview[0])
+
+
+def test_figures_and_index(reports):
+    figs = reports / "figures" / "depth"
+    names = sorted(p.name for p in figs.iterdir())
+    assert names == ["nyu_error_maps.png", "nyu_qualitative.png", "sevenscenes_error_maps.png",
+                     "sevenscenes_qualitative.png", "training_curves.png"]
+    for name in names:
+        data = (figs / name).read_bytes()
+        assert data.startswith(PNG) and len(data) > 5000, name
+    index = (reports / "README.md").read_text()
+    assert "tables/table1_nyu.csv" in index and "figures/depth/nyu_qualitative.png" in index
+    assert "| F²Depth (ours: full) |" in index
+
+
+def test_missing_evaluation_names_the_fix(tmp_path, monkeypatch):
+    monkeypatch.setenv("F2DEPTH_MLFLOW", "0")
+    write_inputs(tmp_path)
+    (tmp_path / "metrics" / "evaluate" / "baseline.json").unlink()
+    fix = r"baseline\.json: not found; run `dvc repro evaluate@baseline`"
+    with pytest.raises(FileNotFoundError, match=fix):
+        run(tmp_path)
+
+
+def test_repository_dvc_stage_outputs_do_not_overlap_other_stages():
+    dvc = yaml.safe_load((ROOT / "dvc.yaml").read_text())
+    stage = dvc["stages"]["tables"]
+    outs = [next(iter(o)) if isinstance(o, dict) else o for o in stage["outs"]]
+    assert outs == ["reports/tables", "reports/figures/depth", "reports/README.md"]
+    for dep in ("metrics/evaluate", "reports/eval", "metrics/train_depth", "${flow_finetune.out_dir}",
+                "f2depth/report", "stages/tables.py"):
+        assert dep in stage["deps"], dep
+    params = yaml.safe_load((ROOT / "params.yaml").read_text())
+    others = [params["keypoints"]["overlay_dir"], params["flow_figure"]["out"]]
+    assert not any(o.startswith(("reports/tables", "reports/figures/depth")) for o in others)
+    plots = {next(iter(p)) for p in dvc["plots"]}
+    assert {"depth_validation_a1", "flow_finetune_epe"} <= plots
