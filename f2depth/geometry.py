@@ -163,17 +163,20 @@ def _normalised_grid(flow: torch.Tensor) -> torch.Tensor:
     return torch.stack((gx, gy), dim=-1)
 
 
-def warp(img: torch.Tensor, flow: torch.Tensor) -> torch.Tensor:
+def warp(img: torch.Tensor, flow: torch.Tensor, padding: str = "border") -> torch.Tensor:
     """Backward warp (ARFlow's ``flow_warp``): ``out(p) = img(p + flow(p))``.
 
     img (B,C,H,W) source image or features, flow (B,2,H,W) pixels, x first, at the same H, W →
-    (B,C,H,W). Bilinear, padding 'border', align_corners=True (grid = 2·(p + f)/(size − 1) − 1).
+    (B,C,H,W). Bilinear, align_corners=True (grid = 2·(p + f)/(size − 1) − 1), ``padding`` "border"
+    (ARFlow's images and features) or "zeros" (ARFlow's flow warp in its occlusion check).
     """
-    if img.shape[-2:] != flow.shape[-2:]:
-        raise ValueError(f"warp: image size {tuple(img.shape[-2:])} != flow size {tuple(flow.shape[-2:])}")
-    return F.grid_sample(
-        img, _normalised_grid(flow), mode="bilinear", padding_mode="border", align_corners=True
-    )
+    if img.shape[-2:] != flow.shape[-2:] or flow.shape[1] != 2:
+        raise ValueError(
+            f"warp: img {tuple(img.shape)} and flow {tuple(flow.shape)} must share (H, W); "
+            "flow needs 2 channels"
+        )
+    grid = _normalised_grid(flow)
+    return F.grid_sample(img, grid, mode="bilinear", padding_mode=padding, align_corners=True)
 
 
 def in_view_mask(flow: torch.Tensor) -> torch.Tensor:
