@@ -46,9 +46,9 @@ def main(argv: list[str]) -> None:
     device = P.resolve_device(str(P.get(p, "device")))
     root, passes = P.get(p, "data.sintel"), tuple(P.get(p, "flow_pretrain.passes"))
     train_seqs, test_seqs = split_sequences(p)
-    cfg = PretrainConfig(**{k: section[k] for k in ("height", "width", "raw_epochs", "census_epochs",
-                                                     "batch_size")},
-                         lr=float(section["lr"]), seed=int(P.get(p, "seed")))
+    cfg = PretrainConfig(**{k: int(section[k]) for k in ("height", "width", "raw_epochs", "census_epochs",
+                                                          "batch_size")},
+                         lr=float(section["lr"]), seed=int(P.get(p, "seed")), init=str(section["init"]))
     figures, n_fig = P.get(p, "flow_pretrain.figure_dir"), int(P.get(p, "flow_pretrain.figures"))
     metrics: dict = {"source": "arflow" if section.get("checkpoint") else str(section["source"]),
                      "train_sequences": train_seqs, "heldout_sequences": test_seqs}

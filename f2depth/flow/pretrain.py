@@ -5,6 +5,13 @@ then ``census_epochs`` with the ``sintel_ft`` loss (census, forward–backward o
 ``stage1`` switch. Adam, constant lr, betas (0.9, 0.999), eps 1e-7, weight decay 1e-6 on weights and 0 on
 biases; batches of frame pairs resized to the training size, horizontal flip and frame-order swap.
 
+Initialisation (``init``): ``msra`` (default) draws every convolution from Kaiming-normal (fan-in) with
+zero biases — the body of ARFlow's ``init_weights``, which never runs there (research/arflow.md §1.9);
+``pytorch`` keeps PyTorch's default, i.e. what ARFlow really trains from. With the default the pyramid
+features are so small that the cost volume is ~1e-3 of the decoder's other inputs and the output
+hardly depends on the images for the first hundreds of steps; with MSRA the correlation peaks are
+visible from the start, which is what makes a CPU-sized pretraining possible.
+
 A step whose loss is not finite is skipped (counted in the epoch stats), so no NaN reaches the
 optimiser. After every epoch the full training state (model, optimiser, epoch, RNG) is written
 atomically to ``<resume_dir>/last.pt``; a later run with the same configuration continues from it.
@@ -25,7 +32,7 @@ from tqdm import tqdm
 
 from f2depth.data.sintel import SintelPair, SintelPairs
 from f2depth.flow.loss import SINTEL_FT, SINTEL_RAW, flow_loss
-from f2depth.flow.pwclite import PWCLite
+from f2depth.flow.pwclite import PWCLite, msra_init
 from f2depth.io import torch_save
 
 RESUME_FORMAT = "f2depth.pwclite_resume"
@@ -42,6 +49,7 @@ class PretrainConfig:
     lr: float = 1e-4
     weight_decay: float = 1e-6
     seed: int = 0
+    init: str = "msra"   # msra: what ARFlow's init_weights means to do; pytorch: what it does (a no-op)
 
     @property
     def epochs(self) -> int:
@@ -102,6 +110,10 @@ def pretrain(model: PWCLite, pairs: Sequence[SintelPair], cfg: PretrainConfig,
         model.load_state_dict(state["model"])
         optim.load_state_dict(state["optimizer"])
         start, history = int(state["epoch"]), list(state["history"])
+    elif cfg.init == "msra":
+        msra_init(model, torch.Generator().manual_seed(cfg.seed))
+    elif cfg.init != "pytorch":
+        raise ValueError(f"PretrainConfig.init must be 'msra' or 'pytorch', got {cfg.init!r}")
     t0 = time.perf_counter()
     for epoch in range(start, cfg.epochs):
         torch.manual_seed(cfg.seed * 100_003 + epoch)  # shuffling and augmentation of this epoch
