@@ -142,12 +142,15 @@ def _parent_run(client: Any, experiment_id: str, commit: str, exp_name: str) -> 
 
 @contextlib.contextmanager
 def stage_run(
-    stage: str, params: Mapping[str, Any], variant: str | None = None, sections: tuple[str, ...] = ()
+    stage: str, params: Mapping[str, Any], variant: str | None = None, sections: tuple[str, ...] = (),
+    closes_pipeline: bool = False,
 ) -> Iterator[StageRun]:
     """Open the child run of ``stage`` (and ``variant``) under this pipeline's parent run.
 
     ``params`` is the whole params.yaml dict; ``sections`` selects what is logged (default: the
-    stage's own section plus the top-level scalars such as the lambdas).
+    stage's own section plus the top-level scalars such as the lambdas). A failing stage marks the
+    parent run FAILED; the last stage of the pipeline (``closes_pipeline``, the ``tables`` stage) marks it
+    FINISHED, so the parent runs of completed ``dvc repro`` / ``dvc exp run`` calls do not stay RUNNING.
     """
     if not enabled():
         yield StageRun()
@@ -184,3 +187,15 @@ def stage_run(
         status = "FINISHED"
     finally:
         client.set_terminated(run.info.run_id, status=status)
+        if status == "FAILED" or closes_pipeline:
+            client.set_terminated(parent_id, status=status)
+
+
+def mirror_stage(stage: str, params: Mapping[str, Any], metrics: Mapping[str, Any],
+                 artifacts: tuple[str | os.PathLike, ...] = (), sections: tuple[str, ...] = ()) -> None:
+    """Mirror a finished stage that needs no per-epoch logging (synth, prepare, keypoints, figures):
+    its params, the numbers of its metrics file and ``artifacts`` (files or folders), as a child run."""
+    with stage_run(stage, params, sections=sections) as run:
+        run.log_metrics(metrics)
+        for path in artifacts:
+            run.log_artifact(path, Path(path).name if Path(path).is_dir() else None)

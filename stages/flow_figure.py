@@ -11,6 +11,7 @@ from __future__ import annotations
 import sys
 
 from f2depth import params as P
+from f2depth import tracking
 from f2depth.data.prepared import PreparedSet
 from f2depth.flow.checkpoint import load_flow_model
 from f2depth.flow.figures import comparison_rows, render_flow_comparison
@@ -36,6 +37,9 @@ def main(argv: list[str]) -> None:
     out = P.get(p, "flow_figure.out")
     rows = comparison_rows(models, pairs, device)
     render_flow_comparison(rows, out)
+    epe = {f"epe.{row.pair_id}.{title}": e[0]
+           for row in rows for title, e in row.epe.items() if e[0] is not None}
+    tracking.mirror_stage("flow_figure", p, epe, artifacts=(out,))
     for row in rows:
         print(f"flow_figure {row.pair_id}: " + ", ".join(
             f"{t} EPE {e[0]:.3f}" for t, e in row.epe.items() if e[0] is not None))

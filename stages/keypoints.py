@@ -12,6 +12,7 @@ import sys
 from pathlib import Path
 
 from f2depth import params as P
+from f2depth import tracking
 from f2depth.io import write_json
 from f2depth.keypoints.extract import extract_keypoints
 
@@ -32,6 +33,7 @@ def main(argv: list[str]) -> None:
         overlays=int(P.get(p, "keypoints.overlays")),
     )
     write_json(METRICS, metrics)
+    tracking.mirror_stage("keypoints", p, metrics, artifacts=(P.get(p, "keypoints.overlay_dir"),))
     per = metrics["points_per_image"]
     print(f"keypoints: {metrics['frames']} frames, {per['mean']:.0f} points per image "
           f"(min {per['min']}, max {per['max']}), {metrics['share_below_100']:.1%} below 100, "

@@ -5,6 +5,7 @@ from __future__ import annotations
 import sys
 
 from f2depth import params as P
+from f2depth import tracking
 from f2depth.data.prepare import PrepareConfig, SuperpixelParams, prepare
 from f2depth.io import write_json
 
@@ -36,6 +37,7 @@ def main(argv: list[str]) -> None:
         train_scenes_file=P.get(p, "prepare.train_scenes_file", None),
     )
     write_json(METRICS, metrics)
+    tracking.mirror_stage("prepare", p, metrics)
     print(f"prepare: {metrics['scenes']} scenes, {metrics['frames']} frames, {metrics['tuples']} tuples, "
           f"{metrics['pairs']} pairs in {metrics['seconds']} s → {P.get(p, 'data.prepared')}")
 

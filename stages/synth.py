@@ -14,6 +14,7 @@ import sys
 from pathlib import Path
 
 from f2depth import params as P
+from f2depth import tracking
 from f2depth.io import write_json, write_text
 from f2depth.synth import OutputPaths, SynthConfig, generate
 
@@ -39,6 +40,7 @@ def main(argv: list[str]) -> int:
     metrics = generate(cfg, paths)
     metrics["generated"] = True
     write_json(METRICS, metrics)
+    tracking.mirror_stage("synth", params, metrics)
     print(f"synth: {metrics['frames']} frames in {metrics['seconds']:.1f} s")
     return 0
 

@@ -43,7 +43,7 @@ def main(argv: list[str]) -> None:
     depth_hist = {v: read_history(Path(args.train_metrics) / v / "history.csv") for v in variants}
     flow_hist = {loss: read_history(flow_dir / loss / "history.csv") for loss in losses}
     tables = build_tables(results, epe)
-    with tracking.stage_run("tables", p, sections=("evaluate", "variants")) as run:
+    with tracking.stage_run("tables", p, sections=("evaluate", "variants"), closes_pipeline=True) as run:
         written = write_report(tables, results, depth_hist, flow_hist, args.out)
         out = Path(args.out)
         run.log_artifact(out / "tables", "tables")

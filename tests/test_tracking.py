@@ -57,7 +57,30 @@ def test_failed_stage_marks_run_failed(mlflow_uri):
     with pytest.raises(RuntimeError), tracking.stage_run("synth", {"synth": {}}) as run:
         rid = run.run_id
         raise RuntimeError("boom")
-    assert MlflowClient(tracking_uri=mlflow_uri).get_run(rid).info.status == "FAILED"
+    client = MlflowClient(tracking_uri=mlflow_uri)
+    run = client.get_run(rid)
+    assert run.info.status == "FAILED"
+    assert client.get_run(run.data.tags["mlflow.parentRunId"]).info.status == "FAILED"
+
+
+def test_last_stage_closes_the_pipeline_run(mlflow_uri, tmp_path):
+    overlays = tmp_path / "overlays"
+    overlays.mkdir()
+    (overlays / "a.png").write_bytes(b"png")
+    tracking.mirror_stage("keypoints", {"keypoints": {"preset": "p2net"}},
+                          {"frames": 36, "points_per_image": {"mean": 2000.5}, "preset": "p2net"},
+                          artifacts=(overlays,))
+    client = MlflowClient(tracking_uri=mlflow_uri)
+    (child,) = client.search_runs([client.get_experiment_by_name("f2depth").experiment_id],
+                                  filter_string="tags.stage = 'keypoints'")
+    assert child.data.metrics == {"frames": 36.0, "points_per_image.mean": 2000.5}
+    assert child.data.params == {"keypoints.preset": "p2net"}
+    assert [a.path for a in client.list_artifacts(child.info.run_id, "overlays")] == ["overlays/a.png"]
+    parent = child.data.tags["mlflow.parentRunId"]
+    assert client.get_run(parent).info.status == "RUNNING"  # more stages may follow
+    with tracking.stage_run("tables", {}, closes_pipeline=True):
+        pass
+    assert client.get_run(parent).info.status == "FINISHED"
 
 
 def test_disabled_is_a_no_op(monkeypatch):
