@@ -14,6 +14,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
+import re
 import subprocess
 from collections.abc import Iterator, Mapping
 from pathlib import Path
@@ -73,6 +74,12 @@ def flatten(d: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
     return out
 
 
+def metric_name(name: str) -> str:
+    """``name`` with every character MLflow rejects in a metric name (anything but letters, digits, ``_ - . :
+    /`` and spaces) replaced by ``_``: "epe.Fine-tuned patch (F²Depth)" → "epe.Fine-tuned patch _F_Depth_"."""
+    return re.sub(r"[^A-Za-z0-9_\-.:/ ]", "_", name)
+
+
 class StageRun:
     """A handle on the child run of one stage; every method is a no-op when MLflow is disabled."""
 
@@ -102,7 +109,7 @@ class StageRun:
 
         now = int(time.time() * 1000)
         items = [
-            Metric(k, float(v), now, step or 0)
+            Metric(metric_name(k), float(v), now, step or 0)
             for k, v in flatten(metrics).items()
             if isinstance(v, (int, float)) and not isinstance(v, bool)
         ]

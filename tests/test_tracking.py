@@ -68,12 +68,14 @@ def test_last_stage_closes_the_pipeline_run(mlflow_uri, tmp_path):
     overlays.mkdir()
     (overlays / "a.png").write_bytes(b"png")
     tracking.mirror_stage("keypoints", {"keypoints": {"preset": "p2net"}},
-                          {"frames": 36, "points_per_image": {"mean": 2000.5}, "preset": "p2net"},
+                          {"frames": 36, "points_per_image": {"mean": 2000.5}, "preset": "p2net",
+                           "epe": {"Fine-tuned patch (F²Depth)": 1.5}},
                           artifacts=(overlays,))
     client = MlflowClient(tracking_uri=mlflow_uri)
     (child,) = client.search_runs([client.get_experiment_by_name("f2depth").experiment_id],
                                   filter_string="tags.stage = 'keypoints'")
-    assert child.data.metrics == {"frames": 36.0, "points_per_image.mean": 2000.5}
+    assert child.data.metrics == {"frames": 36.0, "points_per_image.mean": 2000.5,
+                                  "epe.Fine-tuned patch _F_Depth_": 1.5}
     assert child.data.params == {"keypoints.preset": "p2net"}
     assert [a.path for a in client.list_artifacts(child.info.run_id, "overlays")] == ["overlays/a.png"]
     parent = child.data.tags["mlflow.parentRunId"]
