@@ -7,6 +7,7 @@ in ../shared/data/dso_reference when present, otherwise seeded synthetic images.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import statistics
 import time
@@ -53,6 +54,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--repeats", type=int, default=15, help="timed runs per image (after one warm-up)")
     parser.add_argument("--images", type=Path, default=None, help="folder of grey images (pgm/png)")
+    parser.add_argument("--out", type=Path, default=None, help="also write the numbers as JSON here")
     args = parser.parse_args()
     torch.set_num_threads(1)
     cv2.setNumThreads(1)
@@ -60,6 +62,7 @@ def main() -> None:
     load = os.getloadavg()
     print(f"DSO pixel selector, 640x480, {source}, {args.repeats} runs each, 1 thread; "
           f"load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f} on {os.cpu_count()} cores")
+    results: dict = {"source": source, "repeats": args.repeats, "load_before": list(load)}
     for preset in ("dso", "p2net"):
         for image in images:  # warm-up: random pattern, lookup tables, visiting orders
             KeypointSelector(preset)(image)
@@ -74,6 +77,12 @@ def main() -> None:
         print(f"  {preset:6s} median {1000 * statistics.median(times):6.1f} ms/image wall "
               f"(min {1000 * min(times):.1f}, max {1000 * max(times):.1f}), "
               f"{1000 * statistics.median(cpu):.1f} ms CPU; points per image {min(counts)}..{max(counts)}")
+        results[preset] = {"median_ms": round(1000 * statistics.median(times), 2),
+                           "min_ms": round(1000 * min(times), 2), "max_ms": round(1000 * max(times), 2),
+                           "median_cpu_ms": round(1000 * statistics.median(cpu), 2),
+                           "points_min": min(counts), "points_max": max(counts)}
+    if args.out:
+        args.out.write_text(json.dumps(results, indent=2) + "\n")
 
 
 if __name__ == "__main__":

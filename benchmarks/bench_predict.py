@@ -11,6 +11,7 @@ Run: ``python benchmarks/bench_predict.py [--batch-size 4] [--batches 3]``.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import statistics
 import tempfile
@@ -61,6 +62,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=fmt)
     parser.add_argument("--batch-size", type=int, default=4, help="images per predict call (default 4)")
     parser.add_argument("--batches", type=int, default=3, help="timed batches per configuration (default 3)")
+    parser.add_argument("--out", type=Path, default=None, help="also write the numbers as JSON here")
     args = parser.parse_args()
     torch.set_num_threads(1)
     cv2.setNumThreads(1)
@@ -86,6 +88,13 @@ def main() -> None:
     print(f"{'backend':<12} {'post-process':<13} {'ms/image':>9} {'images/s':>9}")
     for name, pp, sec in rows:
         print(f"{name:<12} {('yes' if pp else 'no'):<13} {1000 * sec:9.1f} {1 / sec:9.2f}")
+    if args.out:
+        args.out.write_text(json.dumps({
+            "net_hw": list(NET_HW), "image_hw": list(IMAGE_HW), "batch_size": args.batch_size,
+            "export_s": round(export_s, 2), "parity_max_abs_m": float(parity.max_abs),
+            "ms_per_image": [{"backend": n, "post_process": pp, "ms": round(1000 * sec, 2)}
+                             for n, pp, sec in rows],
+            "load_before": list(load_before), "load_after": list(load_after)}, indent=2) + "\n")
     print(f"load average (1, 5, 15 min): before {tuple(round(x, 2) for x in load_before)}, "
           f"after {tuple(round(x, 2) for x in load_after)} on {os.cpu_count()} cores")
 

@@ -112,7 +112,7 @@ def main() -> None:
     ap.add_argument("--sizes", nargs="+", default=["96x128", "288x384"])
     ap.add_argument("--threads", nargs="+", type=int, default=[1, 2])
     ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--json", type=Path, default=None, help="also write the numbers here")
+    ap.add_argument("--out", type=Path, default=None, help="also write the numbers as JSON here")
     args = ap.parse_args()
     results = []
     header = " ".join(f"{p:>9}" for p in (*PARTS, "total"))
@@ -123,8 +123,8 @@ def main() -> None:
             r = bench(hw, n, args.repeats)
             results.append({"size": size, "threads": n, **r})
             print(f"{size:>8} {n:>7} " + " ".join(f"{r[p]:9.3f}" for p in (*PARTS, "total")), flush=True)
-    if args.json:
-        args.json.write_text(json.dumps(results, indent=2) + "\n")
+    if args.out:
+        args.out.write_text(json.dumps(results, indent=2) + "\n")
 
 
 if __name__ == "__main__":
