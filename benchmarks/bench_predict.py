@@ -5,7 +5,7 @@ Timed: ``Predictor.predict`` on batches of 480×640 RGB images (resize to 288×3
 resized back, inversion), i.e. what ``predict`` does per frame minus file writing. A random-weight
 DepthModel (ResNet-18) is used: the speed does not depend on the weights.
 
-Run: ``python benchmarks/bench_predict.py [--batch-size 4] [--batches 3]``.
+Run: ``python benchmarks/bench_predict.py [--batch-size 4] [--batches 3] [--out file.json]``.
 """
 
 from __future__ import annotations

@@ -1,7 +1,8 @@
 """One depth-training step (variant `full`: all five losses, frozen PWC-Lite) at batch 4, split into data
 loading, flow network, depth/pose forward, losses and backward (+ Adam step), with 1 and 2 threads.
 
-Run: ``python benchmarks/bench_train_step.py [--sizes 96x128 288x384] [--repeats 3] [--threads 1 2]``.
+Run: ``python benchmarks/bench_train_step.py [--sizes 96x128 288x384] [--repeats 3] [--threads 1 2]
+[--out f.json]``.
 Sizes default to the CPU default (``prepare.height/width`` of params.yaml, 96×128) and the paper's
 288×384. A seeded prepared set of 8 tuples (smooth random images, block superpixels, 2000 keypoints per
 frame) is written to a temporary folder; the networks are randomly initialised. Median of ``--repeats``
