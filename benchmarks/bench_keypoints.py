@@ -7,7 +7,6 @@ Uses the reference images in ../shared/data/dso_reference when present, otherwis
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import statistics
 import time
@@ -21,6 +20,7 @@ import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
+from f2depth.io import write_json  # noqa: E402
 from f2depth.keypoints import KeypointSelector  # noqa: E402
 
 REFERENCE = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "dso_reference"
@@ -82,7 +82,7 @@ def main() -> None:
                            "median_cpu_ms": round(1000 * statistics.median(cpu), 2),
                            "points_min": min(counts), "points_max": max(counts)}
     if args.out:
-        args.out.write_text(json.dumps(results, indent=2) + "\n")
+        write_json(args.out, results)
 
 
 if __name__ == "__main__":

@@ -11,7 +11,6 @@ Run: ``python benchmarks/bench_predict.py [--batch-size 4] [--batches 3] [--out 
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import statistics
 import tempfile
@@ -30,6 +29,7 @@ from f2depth.depth import DepthModel, DepthModelConfig  # noqa: E402
 from f2depth.inference.backends import OnnxBackend, TorchBackend  # noqa: E402
 from f2depth.inference.export import export_onnx  # noqa: E402
 from f2depth.inference.predict import Predictor  # noqa: E402
+from f2depth.io import write_json  # noqa: E402
 
 NET_HW = (288, 384)
 IMAGE_HW = (480, 640)
@@ -89,12 +89,12 @@ def main() -> None:
     for name, pp, sec in rows:
         print(f"{name:<12} {('yes' if pp else 'no'):<13} {1000 * sec:9.1f} {1 / sec:9.2f}")
     if args.out:
-        args.out.write_text(json.dumps({
-            "net_hw": list(NET_HW), "image_hw": list(IMAGE_HW), "batch_size": args.batch_size,
-            "export_s": round(export_s, 2), "parity_max_abs_m": float(parity.max_abs),
+        write_json(args.out, {
+            "net_hw": NET_HW, "image_hw": IMAGE_HW, "batch_size": args.batch_size,
+            "export_s": round(export_s, 2), "parity_max_abs_m": parity.max_abs,
             "ms_per_image": [{"backend": n, "post_process": pp, "ms": round(1000 * sec, 2)}
                              for n, pp, sec in rows],
-            "load_before": list(load_before), "load_after": list(load_after)}, indent=2) + "\n")
+            "load_before": load_before, "load_after": load_after})
     print(f"load average (1, 5, 15 min): before {tuple(round(x, 2) for x in load_before)}, "
           f"after {tuple(round(x, 2) for x in load_after)} on {os.cpu_count()} cores")
 

@@ -12,7 +12,6 @@ steps after one warm-up step.
 from __future__ import annotations
 
 import argparse
-import json
 import statistics
 import tempfile
 import time
@@ -125,7 +124,7 @@ def main() -> None:
             results.append({"size": size, "threads": n, **r})
             print(f"{size:>8} {n:>7} " + " ".join(f"{r[p]:9.3f}" for p in (*PARTS, "total")), flush=True)
     if args.out:
-        args.out.write_text(json.dumps(results, indent=2) + "\n")
+        write_json(args.out, results)
 
 
 if __name__ == "__main__":
