@@ -117,11 +117,12 @@ class StageRun:
             self._client.log_batch(self.run_id, metrics=items)
 
     def log_artifact(self, path: str | os.PathLike, artifact_path: str | None = None) -> None:
+        """Upload a file (into ``artifact_path``) or a folder (into ``artifact_path``, default its name)."""
         if not self.active:
             return
         p = Path(path)
         if p.is_dir():
-            self._client.log_artifacts(self.run_id, str(p), artifact_path)
+            self._client.log_artifacts(self.run_id, str(p), artifact_path or p.name)
         elif p.exists():
             self._client.log_artifact(self.run_id, str(p), artifact_path)
 
@@ -205,4 +206,4 @@ def mirror_stage(stage: str, params: Mapping[str, Any], metrics: Mapping[str, An
     with stage_run(stage, params, sections=sections) as run:
         run.log_metrics(metrics)
         for path in artifacts:
-            run.log_artifact(path, Path(path).name if Path(path).is_dir() else None)
+            run.log_artifact(path)
