@@ -179,6 +179,19 @@ def warp(img: torch.Tensor, flow: torch.Tensor, padding: str = "border") -> torc
     return F.grid_sample(img, grid, mode="bilinear", padding_mode=padding, align_corners=True)
 
 
+def resize_flow(flow: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
+    """ARFlow's ``resize_flow``: ``flow (B,2,H,W)`` pixels, x first → ``(B,2,h,w)`` for ``size = (h, w)``:
+    bilinear (align_corners=True), u scaled by w/W and v by h/H so the flow is in pixels of the new grid.
+    Returns ``flow`` itself when the size is unchanged."""
+    h, w = size
+    H, W = flow.shape[-2:]
+    if (h, w) == (H, W):
+        return flow
+    out = F.interpolate(flow, size=(h, w), mode="bilinear", align_corners=True)
+    scale = torch.tensor([w / W, h / H], dtype=flow.dtype, device=flow.device).reshape(1, 2, 1, 1)
+    return out * scale
+
+
 def in_view_mask(flow: torch.Tensor) -> torch.Tensor:
     """Where ``p + flow`` lies inside the image: 0 ≤ x ≤ W−1 and 0 ≤ y ≤ H−1.
 

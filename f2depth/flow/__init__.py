@@ -12,8 +12,9 @@ from f2depth.flow.checkpoint import (
 from f2depth.flow.correlation import correlation, correlation_reference
 from f2depth.flow.evaluation import EPEAccumulator, epe_stats, flow_to_color, low_texture_mask
 from f2depth.flow.loss import SINTEL_FT, SINTEL_RAW, FlowLossConfig, flow_loss, non_occluded_masks
-from f2depth.flow.pwclite import PWCLite, resize_flow
+from f2depth.flow.pwclite import PWCLite
 from f2depth.flow.warp import warp
+from f2depth.geometry import resize_flow
 
 __all__ = [
     "SINTEL_FT",

@@ -19,6 +19,7 @@ from torch import nn
 
 from f2depth.flow.correlation import correlation
 from f2depth.flow.warp import warp
+from f2depth.geometry import resize_flow
 
 PYRAMID_CHANNELS = (16, 32, 64, 96, 128, 192)
 N_FLOWS = 5  # decoded levels: 1/64 ... 1/4
@@ -112,16 +113,6 @@ def msra_init(model: nn.Module, generator: torch.Generator | None = None) -> nn.
                 if module.bias is not None:
                     module.bias.zero_()
     return model
-
-
-def resize_flow(flow: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
-    """``flow (B,2,h,w)`` pixels → ``(B,2,H,W)``: bilinear (align_corners=True), u·W/w, v·H/h (ARFlow)."""
-    h, w = flow.shape[-2:]
-    if (h, w) == tuple(size):
-        return flow
-    out = F.interpolate(flow, size=size, mode="bilinear", align_corners=True)
-    scale = torch.tensor([size[1] / w, size[0] / h], dtype=flow.dtype, device=flow.device).view(1, 2, 1, 1)
-    return out * scale
 
 
 class PWCLite(nn.Module):

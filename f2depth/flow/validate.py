@@ -19,7 +19,8 @@ import torch
 
 from f2depth.data.sintel import SintelPair, load_pair, to_tensor
 from f2depth.flow.evaluation import EPEAccumulator, endpoint_error, flow_to_color, low_texture_mask
-from f2depth.flow.pwclite import PWCLite, resize_flow
+from f2depth.flow.pwclite import PWCLite
+from f2depth.geometry import resize_flow
 
 
 @torch.no_grad()

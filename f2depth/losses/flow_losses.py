@@ -8,9 +8,8 @@ reach depth and pose only through the rigid flow.
 from __future__ import annotations
 
 import torch
-import torch.nn.functional as F
 
-from f2depth.geometry import in_view_mask, warp
+from f2depth.geometry import in_view_mask, resize_flow, warp
 
 
 def rigid_flow_loss(
@@ -31,18 +30,6 @@ def rigid_flow_loss(
         return diff.mean()
     valid = valid.to(diff.dtype)
     return (diff * valid).sum() / (2 * valid.sum()).clamp(min=1.0)
-
-
-def resize_flow(flow: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
-    """ARFlow's ``resize_flow``: bilinear (align_corners=True) to ``size`` = (h, w), u scaled by w/W and
-    v by h/H so the flow is in pixels of the new grid. flow (B,2,H,W) → (B,2,h,w)."""
-    h, w = size
-    H, W = flow.shape[-2:]
-    if (h, w) == (H, W):
-        return flow
-    out = F.interpolate(flow, size=(h, w), mode="bilinear", align_corners=True)
-    scale = torch.tensor([w / W, h / H], dtype=flow.dtype, device=flow.device).reshape(1, 2, 1, 1)
-    return out * scale
 
 
 def feature_synthesis_level(
