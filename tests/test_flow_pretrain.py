@@ -153,3 +153,8 @@ def test_stage_imports_an_arflow_checkpoint(tmp_path, monkeypatch):
     assert metrics["heldout_sequences"] == ["b_1", "c_1"] and metrics["heldout_clean"]["pairs"] == 4
     loaded = load_flow_model(tmp_path / "models" / "flow_pretrained.pt")
     assert all(torch.equal(v, loaded.state_dict()[k]) for k, v in ref.state_dict().items())
+
+
+def test_config_rejects_an_unknown_init():
+    with pytest.raises(ValueError, match="'msra' or 'pytorch'"):
+        PretrainConfig(init="xavier")

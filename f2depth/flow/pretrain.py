@@ -51,6 +51,10 @@ class PretrainConfig:
     seed: int = 0
     init: str = "msra"   # msra: what ARFlow's init_weights means to do; pytorch: what it does (a no-op)
 
+    def __post_init__(self) -> None:
+        if self.init not in ("msra", "pytorch"):
+            raise ValueError(f"PretrainConfig.init must be 'msra' or 'pytorch', got {self.init!r}")
+
     @property
     def epochs(self) -> int:
         return self.raw_epochs + self.census_epochs
@@ -112,8 +116,6 @@ def pretrain(model: PWCLite, pairs: Sequence[SintelPair], cfg: PretrainConfig,
         start, history = int(state["epoch"]), list(state["history"])
     elif cfg.init == "msra":
         msra_init(model, torch.Generator().manual_seed(cfg.seed))
-    elif cfg.init != "pytorch":
-        raise ValueError(f"PretrainConfig.init must be 'msra' or 'pytorch', got {cfg.init!r}")
     t0 = time.perf_counter()
     for epoch in range(start, cfg.epochs):
         torch.manual_seed(cfg.seed * 100_003 + epoch)  # shuffling and augmentation of this epoch
