@@ -7,7 +7,8 @@ Starts from `flow_finetune.pretrained`, trains on the pairs of every scene excep
 `holdout_scenes` scenes with ground truth, and scores EPE (all / non-occluded / low-texture) on the
 held-out pairs after every epoch. Writes `flow_finetune.model` (with {loss}), `<out_dir>/<loss>/history.csv`
 (DVC plots), `<out_dir>/<loss>.json` (EPE of the pretrained and the fine-tuned model on the held-out
-test pairs and on up to `eval_train_pairs` training pairs, zero-flow baseline, seconds) and mirrors it
+test pairs and on up to `eval_train_pairs` training pairs, with the magnitude ratio Σ|flow|/Σ|gt| and
+the mean cosine to the true flow, zero-flow baseline, seconds) and mirrors it
 to MLflow. The training state goes to `<resume_dir>/<loss>.pt` after every epoch and is removed at the end.
 """
 
@@ -33,7 +34,7 @@ from f2depth.flow.patch_loss import PIXEL_SETS
 from f2depth.io import write_json, write_text
 from f2depth.keypoints.store import KeypointFile
 
-EPE_KEYS = ("epe_all", "epe_noc", "epe_low_texture", "epe_occ", "pairs")
+EPE_KEYS = ("epe_all", "epe_noc", "epe_low_texture", "epe_occ", "magnitude_ratio", "cosine", "pairs")
 
 
 def sha256(path: str | Path) -> str:
@@ -122,13 +123,14 @@ def main(argv: list[str]) -> None:
     resume_path.unlink(missing_ok=True)
     for name, m in (("pretrained", before["test"]), ("fine-tuned", after["test"])):
         print(f"flow_finetune[{loss}] {name}: EPE all {_fmt(m['epe_all'])}, noc {_fmt(m['epe_noc'])}, "
-              f"low-texture {_fmt(m['epe_low_texture'])} on {m['pairs']} test pairs")
+              f"low-texture {_fmt(m['epe_low_texture'])}, |f|/|gt| {_fmt(m['magnitude_ratio'], 2)}, "
+              f"cos {_fmt(m['cosine'], 2)} on {m['pairs']} test pairs")
     print(f"flow_finetune[{loss}]: {len(split.train)} training pairs, {info['epochs_run']} epochs in "
           f"{metrics['seconds']} s → {model_path}")
 
 
-def _fmt(x: float | None) -> str:
-    return "n/a" if x is None else f"{x:.3f}"
+def _fmt(x: float | None, digits: int = 3) -> str:
+    return "n/a" if x is None else f"{x:.{digits}f}"
 
 
 if __name__ == "__main__":

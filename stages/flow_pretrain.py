@@ -6,8 +6,9 @@ With `flow_pretrain.checkpoint` set, that ARFlow *.pth.tar is imported. Otherwis
 from scratch (ARFlow's schedule, f2depth.flow.pretrain) on the Sintel-layout set at `data.sintel` — the
 synthetic animated set (`source: synthetic`) or MPI Sintel (`source: sintel`) — without its last
 `holdout` sequences, resuming from `resume_dir` after an interruption. Writes `model`,
-metrics/flow_pretrain.json (EPE of the model and of zero flow on the held-out sequences and, with
-`eval_prepared`, on the prepared pairs with ground truth) and colour-wheel figures into `figure_dir`.
+metrics/flow_pretrain.json (EPE, magnitude ratio Σ|flow|/Σ|gt| and mean cosine to the true flow of the
+model and of zero flow on the held-out sequences and, with `eval_prepared`, on the prepared pairs with
+ground truth) and colour-wheel figures into `figure_dir`.
 """
 
 from __future__ import annotations
@@ -84,12 +85,13 @@ def main(argv: list[str]) -> None:
             m, z = res["model"], res["zero_flow"]
             print(f"flow_pretrain {name} ({res['pairs']} pairs): EPE all {m['epe_all']:.3f} (zero flow "
                   f"{z['epe_all']:.3f}), noc {m['epe_noc']:.3f} ({z['epe_noc']:.3f}), low texture "
-                  f"{_fmt(m['epe_low_texture'])} ({_fmt(z['epe_low_texture'])})")
+                  f"{_fmt(m['epe_low_texture'])} ({_fmt(z['epe_low_texture'])}), "
+                  f"|f|/|gt| {_fmt(m.get('magnitude_ratio'), 2)}, cos {_fmt(m.get('cosine'), 2)}")
     print(f"flow_pretrain: {metrics['seconds']} s → {section['model']}")
 
 
-def _fmt(x: float | None) -> str:
-    return "n/a" if x is None else f"{x:.3f}"
+def _fmt(x: float | None, digits: int = 3) -> str:
+    return "n/a" if x is None else f"{x:.{digits}f}"
 
 
 if __name__ == "__main__":

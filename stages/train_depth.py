@@ -6,7 +6,9 @@ Usage: python stages/train_depth.py --variant NAME [--params params.yaml] [--no-
 Reads `train_depth`, the top-level lambdas, `data.*` and `variants.NAME` (lambda_rigid and lambda3 from the
 files the variant names). Writes models/depth_NAME/{seed<k>.pt, model.pt (= the first seed's)},
 metrics/train_depth/NAME.json and metrics/train_depth/NAME/history.csv. A killed run resumes from its
-last epoch checkpoint unless --no-resume is given.
+last epoch checkpoint unless --no-resume is given. With ground truth in the prepared set (the
+synthetic default) every epoch also logs depth accuracy and pose errors on the training tuples
+(f2depth.train.diagnostics).
 """
 
 from __future__ import annotations
@@ -49,11 +51,18 @@ def main(argv: list[str]) -> None:
     finally:
         cleanup(ctx)
     if ctx.is_main:
+        floor = m["val_constant_depth"]["a1"]
+        tr0, tr1 = m["train_untrained"].get("train_a1"), m["train_trained"].get("train_a1")
         print(f"train_depth[{args.variant}]: val δ1 {m['val_untrained']['a1']:.3f} untrained → "
-              f"{m['val_trained']['a1']:.3f} trained, AbsRel {m['val_untrained']['abs_rel']:.3f} → "
-              f"{m['val_trained']['abs_rel']:.3f}; {m['seconds_per_epoch']:.1f} s/epoch, "
+              f"{m['val_trained']['a1']:.3f} trained (constant depth: {_fmt(floor)}), AbsRel "
+              f"{m['val_untrained']['abs_rel']:.3f} → {m['val_trained']['abs_rel']:.3f}; training frames δ1 "
+              f"{_fmt(tr0)} → {_fmt(tr1)}; {m['seconds_per_epoch']:.1f} s/epoch, "
               f"{m['wall_seconds']:.0f} s ({len(settings.seeds)} seed(s)) → "
               f"{args.models}/depth_{args.variant}")
+
+
+def _fmt(v: float | None) -> str:
+    return "n/a" if v is None else f"{v:.3f}"
 
 
 if __name__ == "__main__":

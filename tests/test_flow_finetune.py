@@ -192,6 +192,10 @@ def test_stages_write_their_outputs(prepared, tmp_path, monkeypatch):
             assert metrics[which]["test"]["pairs"] == 3 and metrics[which]["train"]["pairs"] == 1
             assert all(metrics[which]["test"][k] >= 0 for k in ("epe_all", "epe_noc", "epe_low_texture"))
         assert metrics["zero_flow"]["test"]["epe_noc"] == pytest.approx(1.0, abs=1e-3)
+        zero = metrics["zero_flow"]["test"]
+        assert zero["magnitude_ratio"] == 0 and zero["cosine"] == 0
+        assert metrics["finetuned"]["test"]["magnitude_ratio"] >= 0
+        assert -1 <= metrics["finetuned"]["test"]["cosine"] <= 1
         with (tmp_path / "metrics" / "flow_finetune" / loss / "history.csv").open() as fh:
             rows = list(csv.DictReader(fh))
         assert [r["epoch"] for r in rows] == ["1"] and float(rows[0]["epe_low_texture"]) >= 0

@@ -91,7 +91,8 @@ def test_evaluate_sintel_scores_model_and_zero_flow(tmp_path):
     assert res["pairs"] == 2
     assert res["zero_flow"]["epe_all"] == pytest.approx(5**0.5, rel=1e-5)
     assert res["zero_flow"]["pixels_all"] == 2 * HW[0] * HW[1] and res["zero_flow"]["epe_occ"] is None
-    assert math.isfinite(res["model"]["epe_all"])
+    assert res["zero_flow"]["magnitude_ratio"] == 0 and res["zero_flow"]["cosine"] == 0
+    assert math.isfinite(res["model"]["epe_all"]) and -1 <= res["model"]["cosine"] <= 1
     assert len(list((tmp_path / "fig").glob("*.png"))) == 1
 
 
@@ -122,7 +123,8 @@ def test_stage_end_to_end(tmp_path, monkeypatch):
     assert metrics["train_sequences"] == ["a_1", "b_1"] and metrics["heldout_sequences"] == ["c_1"]
     for key in ("heldout_clean", "heldout_final"):
         assert metrics[key]["pairs"] == 2
-        assert set(metrics[key]["model"]) >= {"epe_all", "epe_noc", "epe_low_texture"}
+        assert set(metrics[key]["model"]) >= {"epe_all", "epe_noc", "epe_low_texture", "magnitude_ratio",
+                                              "cosine"}
     assert len(metrics["training"]["history"]) == 2
     model = load_flow_model(tmp_path / "models" / "flow_pretrained.pt")
     assert isinstance(model, PWCLite)

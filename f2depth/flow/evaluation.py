@@ -4,6 +4,15 @@ End-point error (EPE) is the Euclidean distance between predicted and true flow 
 averaged over a pixel set: ``all`` (every valid pixel), ``noc`` (not occluded in the next frame),
 ``occ`` and ``low_texture``.
 
+EPE alone does not say whether a network under- or over-estimates motion, so over the ``all`` set
+:class:`EPEAccumulator` also reports
+
+- ``magnitude_ratio`` = Σ|flow| / Σ|gt|, the ratio of the summed vector lengths (1 = right overall
+  magnitude, 0.5 = half the true motion; 0 for zero flow), and
+- ``cosine``: the mean cosine of the angle between the predicted and the true vector over the pixels
+  whose true flow is longer than ``COSINE_MIN_FLOW`` = 0.1 px (shorter ones have no reliable direction);
+  a zero-length prediction counts as cosine 0 (1 = right direction, −1 = opposite).
+
 **Low texture** (our definition): a pixel is low-texture when the local RMS gradient of the grey image
 (``0.2989 R + 0.5870 G + 0.1140 B`` in [0, 1]) is below ``LOW_TEXTURE_THRESHOLD`` = 0.01 per pixel
 (≈ 2.6 grey levels out of 255), where the RMS is taken over a ``LOW_TEXTURE_WINDOW`` = 7×7 box of
@@ -26,6 +35,7 @@ from f2depth.flow.census import GREY_WEIGHTS
 
 LOW_TEXTURE_THRESHOLD = 0.01
 LOW_TEXTURE_WINDOW = 7
+COSINE_MIN_FLOW = 0.1
 
 
 def gradient_energy(img: torch.Tensor, window: int = LOW_TEXTURE_WINDOW) -> torch.Tensor:
@@ -45,22 +55,29 @@ def low_texture_mask(img: torch.Tensor, threshold: float = LOW_TEXTURE_THRESHOLD
 
 
 def endpoint_error(flow: torch.Tensor, gt: torch.Tensor) -> torch.Tensor:
-    """``flow, gt (B,2,H,W)`` pixels → EPE ``(B,1,H,W)``."""
+    """``flow, gt (B,2,H,W)`` pixels, x first → EPE ``(B,1,H,W)``."""
     return (flow - gt).norm(dim=1, keepdim=True)
 
 
 class EPEAccumulator:
-    """Sums EPE over pixel sets across many frames; :meth:`result` gives the means and pixel counts."""
+    """Sums EPE over pixel sets across many frames, plus the flow and ground-truth vector lengths and the
+    cosines between them over the ``all`` set; :meth:`result` gives the means, the magnitude ratio, the
+    mean cosine and the pixel counts (see the module docstring)."""
 
     SETS = ("all", "noc", "occ", "low_texture")
 
     def __init__(self) -> None:
         self.sum = dict.fromkeys(self.SETS, 0.0)
         self.count = dict.fromkeys(self.SETS, 0)
+        self.flow_length = 0.0    # Σ|flow| over the ``all`` pixels
+        self.gt_length = 0.0      # Σ|gt| over the ``all`` pixels
+        self.cosine_sum = 0.0     # Σ cos over the ``all`` pixels with |gt| > COSINE_MIN_FLOW
+        self.cosine_count = 0
 
     def add(self, flow: torch.Tensor, gt: torch.Tensor, occluded: torch.Tensor | None = None,
             low_texture: torch.Tensor | None = None, valid: torch.Tensor | None = None) -> None:
-        """``flow, gt (B,2,H,W)``; optional bool ``occluded``, ``low_texture``, ``valid`` ``(B,1,H,W)``."""
+        """``flow, gt (B,2,H,W)`` pixels, x first; optional bool ``occluded``, ``low_texture``, ``valid``
+        ``(B,1,H,W)``. Pixels with non-finite flow or ground truth are not scored."""
         epe = endpoint_error(flow.float(), gt.float())
         base = torch.isfinite(epe) if valid is None else valid.bool() & torch.isfinite(epe)
         sets = {"all": base}
@@ -72,20 +89,42 @@ class EPEAccumulator:
         for name, m in sets.items():
             self.sum[name] += float(epe[m].double().sum())
             self.count[name] += int(m.sum())
+        self._add_direction(flow, gt, base)
+
+    def _add_direction(self, flow: torch.Tensor, gt: torch.Tensor, mask: torch.Tensor) -> None:
+        """Vector lengths and cosines of the pixels of bool ``mask (B,1,H,W)``."""
+        m = mask[:, 0]
+        f = flow.detach().double().permute(0, 2, 3, 1)[m]      # (N,2)
+        g = gt.detach().double().permute(0, 2, 3, 1)[m]        # (N,2)
+        nf, ng = f.norm(dim=1), g.norm(dim=1)                   # (N,)
+        self.flow_length += float(nf.sum())
+        self.gt_length += float(ng.sum())
+        moving = ng > COSINE_MIN_FLOW
+        denom = nf[moving] * ng[moving]
+        dot = (f[moving] * g[moving]).sum(1)
+        cos = torch.where(denom > 0, dot / denom.clamp_min(torch.finfo(torch.float64).tiny), 0.0)
+        self.cosine_sum += float(cos.clamp(-1.0, 1.0).sum())
+        self.cosine_count += int(moving.sum())
 
     def result(self) -> dict[str, float | int | None]:
-        """``{"epe_all", "epe_noc", "epe_occ", "epe_low_texture", "pixels_<set>"}``; None for empty sets."""
+        """``{"epe_all", "epe_noc", "epe_occ", "epe_low_texture", "pixels_<set>", "magnitude_ratio",
+        "cosine"}``: EPE None for empty sets; ``magnitude_ratio`` = Σ|flow| / Σ|gt| over ``all`` (None
+        when Σ|gt| is 0 or no pixels); ``cosine`` = mean cosine over the ``all`` pixels with |gt| >
+        ``COSINE_MIN_FLOW`` (None when there is none)."""
         out: dict[str, float | int | None] = {}
         for name in self.SETS:
             out[f"epe_{name}"] = self.sum[name] / self.count[name] if self.count[name] else None
         for name in self.SETS:
             out[f"pixels_{name}"] = self.count[name]
+        out["magnitude_ratio"] = self.flow_length / self.gt_length if self.gt_length > 0 else None
+        out["cosine"] = self.cosine_sum / self.cosine_count if self.cosine_count else None
         return out
 
 
 def epe_stats(flow: torch.Tensor, gt: torch.Tensor, occluded: torch.Tensor | None = None,
               low_texture: torch.Tensor | None = None, valid: torch.Tensor | None = None) -> dict:
-    """One-shot :class:`EPEAccumulator` over a batch (see there)."""
+    """One-shot :class:`EPEAccumulator` over a batch (``flow, gt (B,2,H,W)`` pixels, x first; masks
+    ``(B,1,H,W)``): EPE per pixel set, pixel counts, ``magnitude_ratio`` and ``cosine`` (see there)."""
     acc = EPEAccumulator()
     acc.add(flow, gt, occluded, low_texture, valid)
     return acc.result()

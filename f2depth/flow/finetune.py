@@ -72,7 +72,8 @@ def make_optimizer(model: torch.nn.Module, cfg: FinetuneConfig) -> torch.optim.O
 @torch.no_grad()
 def evaluate_epe(model: PWCLite, pairs: Iterable[GTPair], device: str = "cpu") -> dict[str, Any]:
     """EPE of the forward flow on ground-truth pairs: ``{"pairs", "epe_all", "epe_noc", "epe_occ",
-    "epe_low_texture", "pixels_*"}`` (EPE None for empty pixel sets or no pairs)."""
+    "epe_low_texture", "pixels_*", "magnitude_ratio", "cosine"}`` (EPE None for empty pixel sets or no
+    pairs; ratio Σ|flow|/Σ|gt| and mean cosine as in :class:`EPEAccumulator`)."""
     was_training = model.training
     model.eval()
     acc, n = EPEAccumulator(), 0
@@ -85,7 +86,8 @@ def evaluate_epe(model: PWCLite, pairs: Iterable[GTPair], device: str = "cpu") -
 
 
 def zero_flow_epe(pairs: Iterable[GTPair]) -> dict[str, Any]:
-    """EPE of zero flow on the same pixels (how much the ground truth moves): as :func:`evaluate_epe`."""
+    """EPE of zero flow on the same pixels (how much the ground truth moves): as :func:`evaluate_epe`
+    (``magnitude_ratio`` and ``cosine`` are 0 by construction)."""
     acc, n = EPEAccumulator(), 0
     for g in pairs:
         acc.add(torch.zeros_like(g.flow), g.flow, g.occluded, g.low_texture, g.valid)

@@ -29,6 +29,7 @@ from f2depth.io import write_text
 from f2depth.losses.total import TERMS
 from f2depth.train import checkpoint as ckpt
 from f2depth.train.data import EpochView, TupleDataset, rank_indices
+from f2depth.train.diagnostics import DIAGNOSTIC_KEYS
 from f2depth.train.distributed import (
     DistContext,
     agree_finite,
@@ -42,7 +43,8 @@ from f2depth.train.step import StepConfig, batch_to, train_step
 from f2depth.train.teacher import FlowTeacher
 
 #: Columns of history.csv (DVC plots, x = epoch); empty cells for values a row does not have.
-HISTORY_COLUMNS = ["epoch", *TERMS, "total", "lr", "val_abs_rel", "val_a1", "seconds", "val_seconds"]
+HISTORY_COLUMNS = ["epoch", *TERMS, "total", "lr", "val_abs_rel", "val_a1", *DIAGNOSTIC_KEYS, "seconds",
+                   "val_seconds"]
 
 
 @dataclass(frozen=True)

@@ -25,6 +25,7 @@ from f2depth.depth import DepthModel, DepthModelConfig, save_checkpoint
 from f2depth.io import atomic_path, write_json
 from f2depth.train import checkpoint as ckpt
 from f2depth.train.data import DataConfig, TupleDataset
+from f2depth.train.diagnostics import DIAGNOSTIC_KEYS, TrainTruth, constant_depth_metrics, diagnose
 from f2depth.train.distributed import DistContext, barrier
 from f2depth.train.loop import FitResult, LoopConfig, fit, seed_everything, write_history
 from f2depth.train.schedule import LRSchedule
@@ -38,7 +39,7 @@ log = logging.getLogger(__name__)
 
 def run_fingerprint(s: TrainSettings, seed: int) -> str:
     """What a resumable state must match: the settings that shape training and the input files."""
-    ignored = ("seeds", "workers", "checkpoint_dir", "device")
+    ignored = ("seeds", "workers", "checkpoint_dir", "device", "diagnostic_tuples")
     settings = {k: v for k, v in s.as_dict().items() if k not in ignored}
     settings["seed"] = seed
     files = {"tuples": Path(s.prepared) / "tuples.csv", "camera": Path(s.prepared) / "camera.json",
@@ -51,10 +52,12 @@ def _summary(result: FitResult) -> dict[str, Any]:
     first = next((r for r in hist if r["epoch"] == 0), {})
     last = hist[-1] if hist else {}
     losses = {k: v for k, v in last.items() if k not in ("epoch", "lr", "seconds", "val_seconds")
-              and not k.startswith("val_")}
+              and not k.startswith("val_") and k not in DIAGNOSTIC_KEYS}
     return {
         "val_untrained": {"abs_rel": first.get("val_abs_rel"), "a1": first.get("val_a1")},
         "val_trained": {"abs_rel": last.get("val_abs_rel"), "a1": last.get("val_a1")},
+        "train_untrained": {k: first.get(k) for k in DIAGNOSTIC_KEYS if k in first},
+        "train_trained": {k: last.get(k) for k in DIAGNOSTIC_KEYS if k in last},
         "final_losses": losses,
         "seconds": round(sum(r.get("seconds", 0.0) + r.get("val_seconds", 0.0) for r in hist), 2),
         "seconds_per_epoch": round(sum(r.get("seconds", 0.0) for r in hist if r["epoch"] > 0)
@@ -82,6 +85,9 @@ def train_variant(
     teacher = FlowTeacher.load(s.flow_model, ctx.device) if s.flow_model else None
     validator = make_validator(s.nyu_labeled, s.nyu_splits, h, w, ctx.device, gt=s.val_gt, crop=s.val_crop,
                                max_images=s.val_max_images) if ctx.is_main else None
+    truth = (TrainTruth.from_prepared(prepared, s.diagnostic_tuples)
+             if ctx.is_main and s.diagnostic_tuples > 0 else None)
+    floor = constant_depth_metrics(validator) if validator is not None else {}
     step_config = StepConfig(weights=s.weights, min_area=scaled_min_area(h, w), amp=ctx.device.type == "cuda")
     schedule = LRSchedule.scaled(s.lr, s.lr_epochs, s.epochs)
     out_dir = Path(out_dir)
@@ -113,7 +119,7 @@ def train_variant(
                 LoopConfig(s.epochs, s.batch_size, schedule, seed=seed, workers=s.workers, sync_bn=s.sync_bn,
                            progress=progress),
                 ctx=ctx, checkpoint=state_file, resume=resume, fingerprint=run_fingerprint(s, seed),
-                validate=validator,
+                validate=_measure(validator, truth, ctx.device),
                 on_epoch=lambda row, run=run: run.log_metrics(
                     {k: v for k, v in row.items() if k != "epoch" and v is not None}, step=int(row["epoch"])),
             )  # fmt: skip
@@ -134,6 +140,7 @@ def train_variant(
         "lr_phases": list(schedule.phases), "train_tuples": len(dataset),
         "steps_per_epoch": len(dataset) // s.batch_size, "seeds": list(s.seeds), "main_seed": s.seeds[0],
         **{k: v for k, v in per_seed[0].items() if k != "seed"},
+        "val_constant_depth": {"abs_rel": floor.get("val_abs_rel"), "a1": floor.get("val_a1")},
         "per_seed": per_seed, "wall_seconds": round(time.perf_counter() - t0, 2),
     }  # fmt: skip
     if ctx.is_main:
@@ -151,6 +158,20 @@ def train_variant(
             validator.close()
     barrier(ctx)
     return metrics
+
+
+def _measure(validator, truth: TrainTruth | None, device):
+    """The per-epoch measurement ``fit`` calls on rank 0: validation plus, with ground truth, diagnostics."""
+    if validator is None and truth is None:
+        return None
+
+    def measure(model: DepthModel) -> dict[str, float]:
+        out = validator(model) if validator is not None else {}
+        if truth is not None:
+            out.update(diagnose(model, truth, device))
+        return out
+
+    return measure
 
 
 def weights_dict(s: TrainSettings) -> dict[str, float]:

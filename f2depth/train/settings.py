@@ -48,6 +48,7 @@ class TrainSettings:
     sync_bn: bool = True
     device: str = "auto"
     checkpoint_dir: str = "tmp/train_depth"
+    diagnostic_tuples: int = 64
 
     def as_dict(self) -> dict[str, Any]:
         d = dataclasses.asdict(self)
@@ -124,4 +125,5 @@ def settings_from_params(params: dict[str, Any], variant: str) -> TrainSettings:
         sync_bn=bool(td.get("sync_bn", True)),
         device=str(params.get("device", "auto")),
         checkpoint_dir=str(td.get("checkpoint_dir", "tmp/train_depth")),
+        diagnostic_tuples=int(td.get("diagnostic_tuples", 64)),
     )

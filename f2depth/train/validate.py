@@ -18,6 +18,7 @@ from torch import nn
 
 from f2depth.data.nyu_labeled import NYULabeledSet
 from f2depth.depth import disp_to_depth
+from f2depth.eval.metrics import PredictDisp
 from f2depth.eval.nyu import evaluate_nyu
 
 #: Validation sets of at most this many images are read from the .mat once and kept in memory (~2 MB each).
@@ -61,14 +62,19 @@ class Validator:
         def predict_disp(x: torch.Tensor) -> torch.Tensor:
             return disp_to_depth(model.predict_disp(x), lo, hi)[0]  # scaled disparity, ∝ 1/depth
 
-        samples = self._cache if self._cache is not None else (self.set[i] for i in self.positions)
         try:
-            result = evaluate_nyu(
-                samples, predict_disp, height=self.height, width=self.width,
-                crop=self.config.crop, batch_size=self.config.batch_size, device=str(self.device),
-            )  # fmt: skip
+            return self.score(predict_disp)
         finally:
             model.train(was_training)
+
+    @torch.no_grad()
+    def score(self, predict_disp: PredictDisp) -> dict[str, float]:
+        """``{"val_abs_rel", "val_a1"}`` of any ``predict_disp(img (B,3,H,W)) → disp (B,1,H,W)``."""
+        samples = self._cache if self._cache is not None else (self.set[i] for i in self.positions)
+        result = evaluate_nyu(
+            samples, predict_disp, height=self.height, width=self.width,
+            crop=self.config.crop, batch_size=self.config.batch_size, device=str(self.device),
+        )  # fmt: skip
         m = result.metrics
         return {"val_abs_rel": float(m["abs_rel"]), "val_a1": float(m["a1"])}
 

@@ -1,0 +1,143 @@
+"""Training diagnostics on the synthetic default's ground truth, and the floor a depth result must beat.
+
+Self-supervised training can lower its loss without learning depth (a nearly constant depth plus poses
+that explain the image motion), so the loss curve alone does not say whether training works. When the
+prepared set carries ground truth (the embedded synthetic default: ``gt`` column of frames.csv), every
+epoch also measures, on the training tuples, without augmentation:
+
+* ``train_a1``, ``train_abs_rel``: δ<1.25 and AbsRel of the target depth, median-scaled per image over
+  the valid ground-truth pixels (``f2depth.eval.metrics.image_metrics``), averaged over targets;
+* ``pose_rot_err``: mean angle (degrees) between the predicted and the true rotation of both source
+  transforms (``1_T_0`` and ``-1_T_0``); ``pose_rot_true`` / ``pose_rot_pred``: the mean rotation angles;
+* ``pose_trans_cos``: mean cosine between the predicted and the true translation directions (1 = right
+  direction; the scale is free in monocular training).
+
+``constant_depth_metrics`` gives the validation metrics of a constant depth map: with per-image median
+scaling that is what a network scores when it has learned nothing (see docs/depth_training.md).
+Real data has no ground truth: ``TrainTruth.from_prepared`` returns None and nothing is measured.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from torch import nn
+
+from f2depth.data.prepared import PreparedSet
+from f2depth.eval.metrics import EmptyMaskError, image_metrics
+from f2depth.geometry import relative_pose
+from f2depth.train.data import to_tensor
+
+#: Keys ``diagnose`` returns (history.csv columns and MLflow metrics).
+DIAGNOSTIC_KEYS = ("train_a1", "train_abs_rel", "pose_rot_err", "pose_rot_true", "pose_rot_pred",
+                   "pose_trans_cos")
+
+
+@dataclass(frozen=True)
+class TrainTruth:
+    """Ground truth of the training tuples.
+
+    target, prev, next (N,3,H,W) float32 RGB in [0, 1]; depth (N,H,W) float32 metres (0 = invalid);
+    T_prev, T_next (N,4,4) float64: the true ``-1_T_0`` and ``1_T_0`` (target camera → source camera).
+    """
+
+    target: torch.Tensor
+    prev: torch.Tensor
+    next: torch.Tensor
+    depth: np.ndarray
+    T_prev: torch.Tensor
+    T_next: torch.Tensor
+
+    def __len__(self) -> int:
+        return int(self.target.shape[0])
+
+    @classmethod
+    def from_prepared(cls, prepared: PreparedSet, max_tuples: int | None = None) -> TrainTruth | None:
+        """Tuples whose three frames have ground truth (at most ``max_tuples``, evenly spread), or None."""
+        tuples = [t for t in prepared.tuples if all(prepared.has_gt(f) for f in (t.target, t.prev, t.next))]
+        if not tuples:
+            return None
+        if max_tuples is not None and len(tuples) > max_tuples:
+            keep = np.unique(np.linspace(0, len(tuples) - 1, int(max_tuples)).round().astype(int))
+            tuples = [tuples[i] for i in keep]
+        imgs: dict[str, list[torch.Tensor]] = {"target": [], "prev": [], "next": []}
+        depth, poses_prev, poses_next = [], [], []
+        for t in tuples:
+            gt = {f: prepared.gt(f) for f in (t.target, t.prev, t.next)}
+            for key, fid in (("target", t.target), ("prev", t.prev), ("next", t.next)):
+                imgs[key].append(to_tensor(prepared.image(fid)))
+            depth.append(gt[t.target][0])
+            world = {f: torch.from_numpy(gt[f][1]) for f in gt}
+            poses_prev.append(relative_pose(world[t.target], world[t.prev]))
+            poses_next.append(relative_pose(world[t.target], world[t.next]))
+        return cls(torch.stack(imgs["target"]), torch.stack(imgs["prev"]), torch.stack(imgs["next"]),
+                   np.stack(depth), torch.stack(poses_prev), torch.stack(poses_next))
+
+
+def rotation_angle(R: torch.Tensor) -> torch.Tensor:
+    """Rotation angle in degrees of rotation matrices (..., 3, 3) → (...)."""
+    trace = R[..., 0, 0] + R[..., 1, 1] + R[..., 2, 2]
+    return torch.rad2deg(torch.arccos(((trace - 1) / 2).clamp(-1.0, 1.0)))
+
+
+def pose_errors(T_pred: torch.Tensor, T_true: torch.Tensor) -> dict[str, float]:
+    """Predicted vs true rigid transforms (N,4,4) → mean rotation error / angles (degrees) and the mean
+    cosine of the translation directions (a zero-length translation counts as cosine 0)."""
+    T_pred, T_true = T_pred.double(), T_true.double()
+    R_err = T_pred[:, :3, :3] @ T_true[:, :3, :3].transpose(1, 2)
+    t_pred, t_true = T_pred[:, :3, 3], T_true[:, :3, 3]
+    cos = torch.nn.functional.cosine_similarity(t_pred, t_true, dim=1, eps=1e-12)
+    return {
+        "pose_rot_err": float(rotation_angle(R_err).mean()),
+        "pose_rot_true": float(rotation_angle(T_true[:, :3, :3]).mean()),
+        "pose_rot_pred": float(rotation_angle(T_pred[:, :3, :3]).mean()),
+        "pose_trans_cos": float(cos.mean()),
+    }
+
+
+def depth_accuracy(pred: np.ndarray, gt: np.ndarray, min_depth: float = 0.1,
+                   max_depth: float = 10.0) -> dict[str, float]:
+    """pred, gt (N,H,W) metres → mean over images of median-scaled δ1 and AbsRel (images without valid
+    ground truth are left out; NaN when none has any)."""
+    a1, abs_rel = [], []
+    for p, g in zip(pred, gt):
+        try:
+            m, _ = image_metrics(g, p, min_depth=min_depth, max_depth=max_depth)
+        except EmptyMaskError:
+            continue
+        a1.append(m["a1"])
+        abs_rel.append(m["abs_rel"])
+    if not a1:
+        return {"train_a1": math.nan, "train_abs_rel": math.nan}
+    return {"train_a1": float(np.mean(a1)), "train_abs_rel": float(np.mean(abs_rel))}
+
+
+@torch.no_grad()
+def diagnose(model: nn.Module, truth: TrainTruth, device: torch.device | str = "cpu",
+             batch_size: int = 8) -> dict[str, float]:
+    """Depth accuracy and pose errors of ``model`` (a DepthModel, eval mode while measuring) on ``truth``
+    (module docstring) → ``{key: float for key in DIAGNOSTIC_KEYS}``."""
+    was_training = model.training
+    model.eval()
+    depths, T_prev, T_next = [], [], []
+    try:
+        for s in range(0, len(truth), batch_size):
+            tgt, prv, nxt = (x[s:s + batch_size].to(device) for x in (truth.target, truth.prev, truth.next))
+            depths.append(model.predict_depth(tgt)[:, 0].float().cpu().numpy())
+            T_prev.append(model.predict_pose(prv, tgt, invert=True).cpu())
+            T_next.append(model.predict_pose(tgt, nxt).cpu())
+    finally:
+        model.train(was_training)
+    cfg = model.config
+    out = depth_accuracy(np.concatenate(depths), truth.depth, cfg.min_depth, cfg.max_depth)
+    out.update(pose_errors(torch.cat(T_prev + T_next), torch.cat([truth.T_prev, truth.T_next])))
+    return out
+
+
+def constant_depth_metrics(validator) -> dict[str, float]:
+    """``{"val_abs_rel", "val_a1"}`` of a constant depth on ``validator``'s images (the learned-nothing
+    floor: median scaling makes every constant the same)."""
+    return validator.score(lambda x: torch.ones(x.shape[0], 1, x.shape[2], x.shape[3], device=x.device))
