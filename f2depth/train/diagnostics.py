@@ -19,7 +19,6 @@ Real data has no ground truth: ``TrainTruth.from_prepared`` returns None and not
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -27,7 +26,7 @@ import torch
 from torch import nn
 
 from f2depth.data.prepared import PreparedSet
-from f2depth.eval.metrics import EmptyMaskError, image_metrics
+from f2depth.eval.metrics import EmptyMaskError, aggregate, image_metrics
 from f2depth.geometry import relative_pose
 from f2depth.train.data import to_tensor
 
@@ -63,18 +62,17 @@ class TrainTruth:
         if max_tuples is not None and len(tuples) > max_tuples:
             keep = np.unique(np.linspace(0, len(tuples) - 1, int(max_tuples)).round().astype(int))
             tuples = [tuples[i] for i in keep]
-        imgs: dict[str, list[torch.Tensor]] = {"target": [], "prev": [], "next": []}
-        depth, poses_prev, poses_next = [], [], []
-        for t in tuples:
-            gt = {f: prepared.gt(f) for f in (t.target, t.prev, t.next)}
-            for key, fid in (("target", t.target), ("prev", t.prev), ("next", t.next)):
-                imgs[key].append(to_tensor(prepared.image(fid)))
-            depth.append(gt[t.target][0])
-            world = {f: torch.from_numpy(gt[f][1]) for f in gt}
-            poses_prev.append(relative_pose(world[t.target], world[t.prev]))
-            poses_next.append(relative_pose(world[t.target], world[t.next]))
-        return cls(torch.stack(imgs["target"]), torch.stack(imgs["prev"]), torch.stack(imgs["next"]),
-                   np.stack(depth), torch.stack(poses_prev), torch.stack(poses_next))
+        # a frame is the target of one tuple and a source of up to two: read each once
+        fids = {f for t in tuples for f in (t.target, t.prev, t.next)}
+        img = {f: to_tensor(prepared.image(f)) for f in fids}
+        gt = {f: prepared.gt(f) for f in fids}
+        world = {f: torch.from_numpy(gt[f][1]) for f in fids}
+        return cls(
+            torch.stack([img[t.target] for t in tuples]), torch.stack([img[t.prev] for t in tuples]),
+            torch.stack([img[t.next] for t in tuples]), np.stack([gt[t.target][0] for t in tuples]),
+            torch.stack([relative_pose(world[t.target], world[t.prev]) for t in tuples]),
+            torch.stack([relative_pose(world[t.target], world[t.next]) for t in tuples]),
+        )
 
 
 def rotation_angle(R: torch.Tensor) -> torch.Tensor:
@@ -102,17 +100,14 @@ def depth_accuracy(pred: np.ndarray, gt: np.ndarray, min_depth: float = 0.1,
                    max_depth: float = 10.0) -> dict[str, float]:
     """pred, gt (N,H,W) metres → mean over images of median-scaled δ1 and AbsRel (images without valid
     ground truth are left out; NaN when none has any)."""
-    a1, abs_rel = [], []
+    per_image = []
     for p, g in zip(pred, gt):
         try:
-            m, _ = image_metrics(g, p, min_depth=min_depth, max_depth=max_depth)
+            per_image.append(image_metrics(g, p, min_depth=min_depth, max_depth=max_depth)[0])
         except EmptyMaskError:
             continue
-        a1.append(m["a1"])
-        abs_rel.append(m["abs_rel"])
-    if not a1:
-        return {"train_a1": math.nan, "train_abs_rel": math.nan}
-    return {"train_a1": float(np.mean(a1)), "train_abs_rel": float(np.mean(abs_rel))}
+    mean = aggregate(per_image).mean
+    return {"train_a1": mean["a1"], "train_abs_rel": mean["abs_rel"]}
 
 
 @torch.no_grad()
