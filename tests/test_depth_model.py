@@ -15,6 +15,7 @@ from f2depth.depth import (
     read_checkpoint,
     save_checkpoint,
 )
+from f2depth.depth.decoder import sigmoid_input_for_depth
 from f2depth.depth.resnet import ResNet
 
 
@@ -57,6 +58,37 @@ def test_disp_to_depth_range():
     scaled, depth = disp_to_depth(disp, 0.1, 10.0)
     assert depth[0].item() == pytest.approx(10.0) and depth[2].item() == pytest.approx(0.1)
     assert torch.allclose(scaled * depth, torch.ones(3))
+
+
+def test_sigmoid_input_for_depth_inverts_disp_to_depth():
+    # hand-computed: 2 m in [0.1, 10] → disp = (0.5 − 0.1) / (10 − 0.1) = 0.040404,
+    # x = ln(0.040404 / 0.959596) = ln(0.042105) = −3.16758
+    assert sigmoid_input_for_depth(2.0) == pytest.approx(-3.16758, abs=1e-5)
+    assert sigmoid_input_for_depth(1 / (0.1 + 9.9 * 0.5)) == pytest.approx(0.0, abs=1e-12)  # sigmoid 0.5
+    for depth, lo, hi in ((0.3, 0.1, 10.0), (2.0, 0.1, 10.0), (9.5, 0.1, 10.0), (40.0, 0.5, 80.0)):
+        x = torch.tensor(sigmoid_input_for_depth(depth, lo, hi), dtype=torch.float64)
+        assert disp_to_depth(torch.sigmoid(x), lo, hi)[1].item() == pytest.approx(depth, rel=1e-9)
+    for bad in (0.1, 10.0, 0.05, 12.0):
+        with pytest.raises(ValueError, match="strictly between"):
+            sigmoid_input_for_depth(bad)
+
+
+def test_set_initial_depth_moves_the_untrained_prediction():
+    torch.manual_seed(0)
+    m = DepthModel(DepthModelConfig(height=64, width=64)).eval()
+    img = torch.rand(2, 3, 64, 64)
+    with torch.no_grad():
+        assert m.predict_depth(img).median().item() == pytest.approx(0.198, abs=0.01)  # sigmoid ≈ 0.5
+        weights = {k: v.clone() for k, v in m.state_dict().items()}
+        for target in (0.5, 2.0, 5.0):
+            m.set_initial_depth(target)
+            depth = m.predict_depth(img)
+            assert depth.median().item() == pytest.approx(target, rel=0.05)
+            assert depth.std().item() > 0  # the random weights still vary the output
+    changed = [k for k, v in m.state_dict().items() if not torch.equal(v, weights[k])]
+    assert changed == ["depth_decoder.dispconv.bias"]
+    with pytest.raises(ValueError, match="strictly between"):
+        m.set_initial_depth(10.0)
 
 
 def test_model_depth_and_pose(model):

@@ -83,6 +83,44 @@ def test_stage_trains_every_seed_and_writes_outputs(setup, monkeypatch):
     assert not list((root / "ckpt" / "full").glob("*.pt"))  # resume states removed after success
 
 
+def test_init_depth_setting(setup):
+    _, path = setup
+    p = P.load(path)
+    assert settings_from_params(p, "full").init_depth is None  # P²Net's start unless asked
+    p["train_depth"]["init_depth"] = 2
+    assert settings_from_params(p, "baseline").init_depth == 2.0
+    for bad in (10.0, 0.1, -1, "2 m", True):
+        p["train_depth"]["init_depth"] = bad
+        with pytest.raises(P.ParamsError, match="train_depth.init_depth must be null or a depth in metres"):
+            settings_from_params(p, "full")
+
+
+def test_stage_starts_the_depth_at_init_depth(tmp_path, monkeypatch):
+    """With a negligible lr the trained model is the initial one: its depth is the requested 2 m, not the
+    ≈ 0.2 m of P²Net's start."""
+    prep = train_fakes.write_prepared(tmp_path / "prepared", hw=(64, 64), scenes=1, frames=4)
+    mat, splits = train_fakes.write_nyu_test(tmp_path, n=2)
+    monkeypatch.setenv("F2DEPTH_MLFLOW", "0")
+    torch.set_num_threads(1)
+    spec = importlib.util.spec_from_file_location("train_depth_stage", STAGE)
+    stage = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(stage)
+    img = torch.rand(1, 3, 64, 64, generator=torch.Generator().manual_seed(0))
+    medians = {}
+    for init in (None, 2.0):
+        (tmp_path / f"run_{init}").mkdir()
+        path = train_fakes.write_params(tmp_path / f"run_{init}", prep, mat, splits, None, epochs=1,
+                                        lr=[1e-12, 1e-12, 1e-12], init_depth=init, diagnostic_tuples=0)
+        out = tmp_path / f"run_{init}"
+        stage.main(["train_depth.py", "--variant", "baseline", "--params", str(path),
+                    "--models", str(out / "models"), "--metrics", str(out / "metrics")])
+        with torch.no_grad():
+            model = load_checkpoint(out / "models" / "depth_baseline" / "model.pt").eval()
+            medians[init] = model.predict_depth(img).median().item()
+    assert medians[None] == pytest.approx(0.2, rel=0.1)
+    assert medians[2.0] == pytest.approx(2.0, rel=0.1)
+
+
 def test_repository_variants_are_consistent():
     """The variants of the repository's params.yaml resolve, and dvc.yaml's train_depth stage tracks them."""
     root = STAGE.parents[1]

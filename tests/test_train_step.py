@@ -14,7 +14,7 @@ from torch.utils.data import default_collate
 from f2depth.depth import DepthModel, DepthModelConfig
 from f2depth.flow import PWCLite
 from f2depth.geometry import in_view_mask, relative_pose, rigid_flow, warp
-from f2depth.losses import LossWeights, NonFiniteLossError, rigid_flow_loss
+from f2depth.losses import LossWeights, NonFiniteLossError, rigid_flow_loss, total_loss
 from f2depth.synth.camera_path import handheld_path
 from f2depth.synth.groundtruth import occlusion
 from f2depth.synth.groundtruth import relative_pose as synth_relative_pose
@@ -25,6 +25,7 @@ from f2depth.synth.render import render
 from f2depth.train import augment as A
 from f2depth.train.data import DataConfig, TupleDataset
 from f2depth.train.step import (
+    NetOutput,
     StepConfig,
     compute_loss,
     loss_terms,
@@ -32,7 +33,7 @@ from f2depth.train.step import (
     teacher_forward,
     train_step,
 )
-from f2depth.train.teacher import FlowTeacher
+from f2depth.train.teacher import FlowTeacher, TeacherOutput
 
 HW = (48, 64)
 K_SYNTH = np.array([[52.0, 0.0, 36.2], [0.0, 53.0, 22.7], [0.0, 0.0, 1.0]])  # principal point off-centre
@@ -180,3 +181,58 @@ def test_compute_loss_matches_weighted_terms(tiny):
                 + 2.0 * logs["feature"])
     assert float(loss) == pytest.approx(expected, rel=1e-5)
     assert logs["total"] == pytest.approx(expected, rel=1e-5)
+
+
+# ---- learning: with the true pose and the true flow, DepthCNN learns the depth -------------------------
+
+def test_depth_network_learns_a_rendered_room_from_true_pose_and_flow():
+    """The whole depth path (DepthCNN, disp → depth, rigid flow, L_rigid + L_ph + L_sm, Adam) moves a real
+    network to the true depth of a ray-traced room when the pose and the flow are right — what ImageNet
+    PoseCNN and a trained flow network give the paper, and what the CPU default cannot learn from scratch
+    (docs/depth_training.md). One view pair, overfitted: this checks gradients and conventions end to end."""
+    hw = (64, 96)
+    K = K_SYNTH * np.array([[1.5], [4 / 3], [1.0]])  # the 48×64 camera scaled to 64×96
+    scene = room("nyu", "bedroom", "bedroom_0001", 0)
+    poses, _ = handheld_path(scene, 40, rng_for(0, "learning-test"), PATHS["nyu"])
+    c0, d0 = render(scene, poses[0], K, hw, 1)
+    c1, _ = render(scene, poses[10], K, hw, 1)  # a third of a second later, as prepare's frame_step 10
+    T = relative_pose(_t(poses[0], torch.float64)[None], _t(poses[10], torch.float64)[None]).float()
+    gt_depth = _t(d0)[None, None]
+    Kt = _t(K)[None]
+    flow = TeacherOutput(rigid_flow(gt_depth, Kt, T), [], [])
+    assert float(flow.flow.norm(dim=1).mean()) > 2.0  # pixels of motion, not a trivial pair
+    img0, img1 = (_t(np.clip(c, 0, 1)).permute(2, 0, 1)[None] for c in (c0, c1))
+    gen = torch.Generator().manual_seed(0)
+    points = torch.stack([torch.randint(4, hw[1] - 4, (300,), generator=gen),
+                          torch.randint(4, hw[0] - 4, (300,), generator=gen)], dim=-1).float()[None]
+    batch = {"target": img0, "prev": img1, "next": img1, "K": Kt, "points": points,
+             "segments": torch.zeros(1, *hw, dtype=torch.int64)}
+    cfg = StepConfig(LossWeights(lambda1=1e-3, lambda2=0.0, lambda3=0.0, lambda_rigid=1.0), min_area=10)
+    torch.manual_seed(0)
+    model = DepthModel(DepthModelConfig(*hw))
+    model.set_initial_depth(2.0)
+    opt = torch.optim.Adam(list(model.depth_encoder.parameters()) + list(model.depth_decoder.parameters()),
+                           lr=1e-3)
+
+    def errors() -> tuple[float, float]:
+        """(median-scaled AbsRel, correlation of log depths) of the current prediction."""
+        model.eval()
+        with torch.no_grad():
+            pred = model.predict_depth(img0)[0, 0]
+        model.train()
+        g = gt_depth[0, 0]
+        scaled = pred * g.median() / pred.median()
+        corr = torch.corrcoef(torch.stack([pred.log().flatten(), g.log().flatten()]))[0, 1]
+        return float(((scaled - g).abs() / g).mean()), float(corr)
+
+    abs_rel0, corr0 = errors()
+    for _ in range(60):
+        disp = model.predict_disp(img0)
+        net = NetOutput(disp, model.disp_to_depth(disp), T, T)
+        loss, _ = total_loss(loss_terms(net, batch, flow, cfg), cfg.weights)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    abs_rel, corr = errors()
+    assert abs(corr0) < 0.5 and corr > 0.9, (corr0, corr)
+    assert abs_rel < 0.4 * abs_rel0, (abs_rel0, abs_rel)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import torch
 import torch.nn.functional as F
 from torch import nn
@@ -76,3 +78,16 @@ def disp_to_depth(
     max_disp = 1.0 / min_depth
     scaled = min_disp + (max_disp - min_disp) * disp
     return scaled, 1.0 / scaled
+
+
+def sigmoid_input_for_depth(depth: float, min_depth: float = 0.1, max_depth: float = 10.0) -> float:
+    """The pre-sigmoid value x whose ``disp_to_depth(sigmoid(x))`` is ``depth`` metres.
+
+    Inverse of ``disp_to_depth``: disp = (1/depth − 1/max) / (1/min − 1/max), x = log(disp / (1 − disp)).
+    ``depth`` must lie strictly between min_depth and max_depth (ValueError otherwise).
+    """
+    if not min_depth < depth < max_depth:
+        raise ValueError(f"depth {depth} m must lie strictly between min_depth {min_depth} and "
+                         f"max_depth {max_depth}")
+    disp = (1.0 / depth - 1.0 / max_depth) / (1.0 / min_depth - 1.0 / max_depth)
+    return math.log(disp / (1.0 - disp))

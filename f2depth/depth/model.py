@@ -20,7 +20,7 @@ from typing import Any
 import torch
 from torch import nn
 
-from f2depth.depth.decoder import UPSAMPLE_MODES, DepthDecoder, disp_to_depth
+from f2depth.depth.decoder import UPSAMPLE_MODES, DepthDecoder, disp_to_depth, sigmoid_input_for_depth
 from f2depth.depth.encoder import ResnetEncoder
 from f2depth.depth.pose import PoseDecoder
 from f2depth.depth.resnet import BLOCKS, load_imagenet_resnet
@@ -125,6 +125,17 @@ class DepthModel(nn.Module):
         return pose_from_params(axisangle, translation, invert=invert)
 
     # -- weights ---------------------------------------------------------------------------------------
+    def set_initial_depth(self, depth: float) -> None:
+        """Shift the depth decoder's output bias so that the untrained DepthCNN predicts about ``depth``
+        metres everywhere instead of the ≈ 0.2 m of sigmoid 0.5 (P²Net's and Monodepth2's start).
+
+        Only the bias of ``depth_decoder.dispconv`` changes (by the pre-sigmoid value of ``depth``); the
+        random weights still vary the output around it. Call before training, not on a trained model.
+        """
+        bias = sigmoid_input_for_depth(depth, self.config.min_depth, self.config.max_depth)
+        with torch.no_grad():
+            self.depth_decoder.dispconv.bias.fill_(bias)
+
     def load_imagenet(self, path: str | os.PathLike) -> None:
         """Initialise both encoders from a torchvision ImageNet ResNet state_dict file.
 

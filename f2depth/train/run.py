@@ -95,7 +95,8 @@ def train_variant(
         log.info("train_depth[%s]: %d tuples at %dx%d, batch %d, %d epochs (lr phases %s), flow model %s, "
                  "weights %s, %s", s.variant, len(dataset), h, w, s.batch_size, s.epochs,
                  list(schedule.phases), s.flow_model or "none (P²Net baseline)", s.weights,
-                 f"ImageNet init from {s.imagenet_weights}" if s.imagenet_weights else "random init")
+                 (f"ImageNet init from {s.imagenet_weights}" if s.imagenet_weights else "random init")
+                 + (f", initial depth {s.init_depth} m" if s.init_depth is not None else ""))
         if out_dir.exists():
             shutil.rmtree(out_dir)  # stale seeds of an earlier run must not survive
         out_dir.mkdir(parents=True)
@@ -107,6 +108,8 @@ def train_variant(
         model = DepthModel(DepthModelConfig(height=h, width=w))
         if s.imagenet_weights:
             model.load_imagenet(s.imagenet_weights)
+        if s.init_depth is not None:
+            model.set_initial_depth(s.init_depth)
         state_file = Path(s.checkpoint_dir) / s.variant / f"seed{seed}.pt"
         run_ctx = (tracking.stage_run("train_depth", params or {}, variant=s.variant)
                    if ctx.is_main else contextlib.nullcontext(tracking.StageRun()))

@@ -18,9 +18,12 @@ from typing import Any
 import yaml
 
 from f2depth import params as P
+from f2depth.depth import DepthModelConfig
 from f2depth.losses import LossWeights
 
 PARAMS_NAME = "params.yaml"
+#: DepthModelConfig's default (min_depth, max_depth), metres
+MODEL_DEPTH_RANGE = (DepthModelConfig.min_depth, DepthModelConfig.max_depth)
 
 
 @dataclass(frozen=True)
@@ -42,6 +45,7 @@ class TrainSettings:
     seeds: tuple[int, ...]
     workers: int = 0
     imagenet_weights: str | None = None
+    init_depth: float | None = None
     val_gt: str = "depths"
     val_crop: str = "eigen"
     val_max_images: int | None = 20
@@ -101,6 +105,13 @@ def settings_from_params(params: dict[str, Any], variant: str) -> TrainSettings:
     if not seeds or len(set(seeds)) != len(seeds):
         raise P.ParamsError(f"{path}: train_depth.seeds must be a non-empty list of distinct integers")
     val_max = td.get("val_max_images", 20)
+    init_depth = td.get("init_depth")
+    if init_depth is not None:
+        lo, hi = MODEL_DEPTH_RANGE
+        number = isinstance(init_depth, (int, float)) and not isinstance(init_depth, bool)
+        if not number or not lo < init_depth < hi:
+            raise P.ParamsError(f"{path}: train_depth.init_depth must be null or a depth in metres strictly "
+                                f"between {lo} and {hi} (DepthCNN's range), got {init_depth!r}")
     return TrainSettings(
         variant=variant,
         prepared=str(P.get(params, "data.prepared")),
@@ -119,6 +130,7 @@ def settings_from_params(params: dict[str, Any], variant: str) -> TrainSettings:
         seeds=seeds,
         workers=int(td.get("workers", 0)),
         imagenet_weights=td.get("imagenet_weights"),
+        init_depth=None if init_depth is None else float(init_depth),
         val_gt=str(P.get(params, "evaluate.nyu_gt", "depths")),
         val_crop=str(P.get(params, "evaluate.nyu_crop", "eigen")),
         val_max_images=None if val_max is None else int(val_max),
