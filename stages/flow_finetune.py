@@ -27,6 +27,7 @@ import torch
 from f2depth import params as P
 from f2depth import tracking
 from f2depth.data.prepared import PreparedSet
+from f2depth.eval.tables import format_value as fmt
 from f2depth.flow.checkpoint import load_flow_model, save_flow_model
 from f2depth.flow.finetune import HISTORY_COLUMNS, FinetuneConfig, evaluate_epe, finetune, zero_flow_epe
 from f2depth.flow.finetune_data import FlowPairs, gt_pairs, split_pairs
@@ -122,15 +123,12 @@ def main(argv: list[str]) -> None:
         run.log_artifact(metrics_json)
     resume_path.unlink(missing_ok=True)
     for name, m in (("pretrained", before["test"]), ("fine-tuned", after["test"])):
-        print(f"flow_finetune[{loss}] {name}: EPE all {_fmt(m['epe_all'])}, noc {_fmt(m['epe_noc'])}, "
-              f"low-texture {_fmt(m['epe_low_texture'])}, |f|/|gt| {_fmt(m['magnitude_ratio'], 2)}, "
-              f"cos {_fmt(m['cosine'], 2)} on {m['pairs']} test pairs")
+        print(f"flow_finetune[{loss}] {name}: EPE all {fmt(m['epe_all'])}, noc {fmt(m['epe_noc'])}, "
+              f"low-texture {fmt(m['epe_low_texture'])}, |f|/|gt| {fmt(m['magnitude_ratio'], 2)}, "
+              f"cos {fmt(m['cosine'], 2)} on {m['pairs']} test pairs")
     print(f"flow_finetune[{loss}]: {len(split.train)} training pairs, {info['epochs_run']} epochs in "
           f"{metrics['seconds']} s → {model_path}")
 
-
-def _fmt(x: float | None, digits: int = 3) -> str:
-    return "n/a" if x is None else f"{x:.{digits}f}"
 
 
 if __name__ == "__main__":

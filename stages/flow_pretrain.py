@@ -21,6 +21,7 @@ import torch
 from f2depth import params as P
 from f2depth import tracking
 from f2depth.data.sintel import list_pairs, list_sequences
+from f2depth.eval.tables import format_value as fmt
 from f2depth.flow import PWCLite, load_arflow_checkpoint, save_flow_model
 from f2depth.flow.pretrain import PretrainConfig, clear_resume, pretrain
 from f2depth.flow.validate import evaluate_prepared, evaluate_sintel
@@ -85,13 +86,10 @@ def main(argv: list[str]) -> None:
             m, z = res["model"], res["zero_flow"]
             print(f"flow_pretrain {name} ({res['pairs']} pairs): EPE all {m['epe_all']:.3f} (zero flow "
                   f"{z['epe_all']:.3f}), noc {m['epe_noc']:.3f} ({z['epe_noc']:.3f}), low texture "
-                  f"{_fmt(m['epe_low_texture'])} ({_fmt(z['epe_low_texture'])}), "
-                  f"|f|/|gt| {_fmt(m.get('magnitude_ratio'), 2)}, cos {_fmt(m.get('cosine'), 2)}")
+                  f"{fmt(m['epe_low_texture'])} ({fmt(z['epe_low_texture'])}), "
+                  f"|f|/|gt| {fmt(m.get('magnitude_ratio'), 2)}, cos {fmt(m.get('cosine'), 2)}")
     print(f"flow_pretrain: {metrics['seconds']} s → {section['model']}")
 
-
-def _fmt(x: float | None, digits: int = 3) -> str:
-    return "n/a" if x is None else f"{x:.{digits}f}"
 
 
 if __name__ == "__main__":

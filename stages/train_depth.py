@@ -19,6 +19,7 @@ import sys
 from pathlib import Path
 
 from f2depth import params as P
+from f2depth.eval.tables import format_value as fmt
 from f2depth.losses import NonFiniteLossError
 from f2depth.train.distributed import cleanup, init_from_env
 from f2depth.train.run import train_variant
@@ -54,15 +55,12 @@ def main(argv: list[str]) -> None:
         floor = m["val_constant_depth"]["a1"]
         tr0, tr1 = m["train_untrained"].get("train_a1"), m["train_trained"].get("train_a1")
         print(f"train_depth[{args.variant}]: val δ1 {m['val_untrained']['a1']:.3f} untrained → "
-              f"{m['val_trained']['a1']:.3f} trained (constant depth: {_fmt(floor)}), AbsRel "
+              f"{m['val_trained']['a1']:.3f} trained (constant depth: {fmt(floor)}), AbsRel "
               f"{m['val_untrained']['abs_rel']:.3f} → {m['val_trained']['abs_rel']:.3f}; training frames δ1 "
-              f"{_fmt(tr0)} → {_fmt(tr1)}; {m['seconds_per_epoch']:.1f} s/epoch, "
+              f"{fmt(tr0)} → {fmt(tr1)}; {m['seconds_per_epoch']:.1f} s/epoch, "
               f"{m['wall_seconds']:.0f} s ({len(settings.seeds)} seed(s)) → "
               f"{args.models}/depth_{args.variant}")
 
-
-def _fmt(v: float | None) -> str:
-    return "n/a" if v is None else f"{v:.3f}"
 
 
 if __name__ == "__main__":

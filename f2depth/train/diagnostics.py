@@ -29,6 +29,7 @@ from f2depth.data.prepared import PreparedSet
 from f2depth.eval.metrics import EmptyMaskError, aggregate, image_metrics
 from f2depth.geometry import relative_pose
 from f2depth.train.data import to_tensor
+from f2depth.train.validate import evaluating
 
 #: Keys ``diagnose`` returns (history.csv columns and MLflow metrics).
 DIAGNOSTIC_KEYS = ("train_a1", "train_abs_rel", "pose_rot_err", "pose_rot_true", "pose_rot_pred",
@@ -115,17 +116,13 @@ def diagnose(model: nn.Module, truth: TrainTruth, device: torch.device | str = "
              batch_size: int = 8) -> dict[str, float]:
     """Depth accuracy and pose errors of ``model`` (a DepthModel, eval mode while measuring) on ``truth``
     (module docstring) → ``{key: float for key in DIAGNOSTIC_KEYS}``."""
-    was_training = model.training
-    model.eval()
     depths, T_prev, T_next = [], [], []
-    try:
+    with evaluating(model):
         for s in range(0, len(truth), batch_size):
             tgt, prv, nxt = (x[s:s + batch_size].to(device) for x in (truth.target, truth.prev, truth.next))
             depths.append(model.predict_depth(tgt)[:, 0].float().cpu().numpy())
             T_prev.append(model.predict_pose(prv, tgt, invert=True).cpu())
             T_next.append(model.predict_pose(tgt, nxt).cpu())
-    finally:
-        model.train(was_training)
     cfg = model.config
     out = depth_accuracy(np.concatenate(depths), truth.depth, cfg.min_depth, cfg.max_depth)
     out.update(pose_errors(torch.cat(T_prev + T_next), torch.cat([truth.T_prev, truth.T_next])))

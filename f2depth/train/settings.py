@@ -19,11 +19,10 @@ import yaml
 
 from f2depth import params as P
 from f2depth.depth import DepthModelConfig
+from f2depth.depth.decoder import sigmoid_input_for_depth
 from f2depth.losses import LossWeights
 
 PARAMS_NAME = "params.yaml"
-#: DepthModelConfig's default (min_depth, max_depth), metres
-MODEL_DEPTH_RANGE = (DepthModelConfig.min_depth, DepthModelConfig.max_depth)
 
 
 @dataclass(frozen=True)
@@ -107,11 +106,14 @@ def settings_from_params(params: dict[str, Any], variant: str) -> TrainSettings:
     val_max = td.get("val_max_images", 20)
     init_depth = td.get("init_depth")
     if init_depth is not None:
-        lo, hi = MODEL_DEPTH_RANGE
-        number = isinstance(init_depth, (int, float)) and not isinstance(init_depth, bool)
-        if not number or not lo < init_depth < hi:
+        try:
+            if isinstance(init_depth, bool):
+                raise TypeError("a bool is not a depth")
+            sigmoid_input_for_depth(init_depth, DepthModelConfig.min_depth, DepthModelConfig.max_depth)
+        except (TypeError, ValueError) as exc:
             raise P.ParamsError(f"{path}: train_depth.init_depth must be null or a depth in metres strictly "
-                                f"between {lo} and {hi} (DepthCNN's range), got {init_depth!r}")
+                                f"between {DepthModelConfig.min_depth} and {DepthModelConfig.max_depth} "
+                                f"(DepthCNN's range), got {init_depth!r}") from exc
     return TrainSettings(
         variant=variant,
         prepared=str(P.get(params, "data.prepared")),

@@ -10,6 +10,8 @@ spaced test images keep it quick (up to ``CACHE_MAX`` of them are read once and 
 from __future__ import annotations
 
 import os
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
@@ -23,6 +25,17 @@ from f2depth.eval.nyu import evaluate_nyu
 
 #: Validation sets of at most this many images are read from the .mat once and kept in memory (~2 MB each).
 CACHE_MAX = 100
+
+
+@contextmanager
+def evaluating(model: nn.Module) -> Iterator[nn.Module]:
+    """``model`` in eval mode inside the block; its train/eval mode is restored afterwards, also on error."""
+    was_training = model.training
+    model.eval()
+    try:
+        yield model
+    finally:
+        model.train(was_training)
 
 
 @dataclass(frozen=True)
@@ -55,17 +68,13 @@ class Validator:
 
     @torch.no_grad()
     def __call__(self, model: nn.Module) -> dict[str, float]:
-        was_training = model.training
-        model.eval()
         lo, hi = model.config.min_depth, model.config.max_depth
 
         def predict_disp(x: torch.Tensor) -> torch.Tensor:
             return disp_to_depth(model.predict_disp(x), lo, hi)[0]  # scaled disparity, ∝ 1/depth
 
-        try:
+        with evaluating(model):
             return self.score(predict_disp)
-        finally:
-            model.train(was_training)
 
     @torch.no_grad()
     def score(self, predict_disp: PredictDisp) -> dict[str, float]:
