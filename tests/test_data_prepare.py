@@ -5,22 +5,26 @@ from __future__ import annotations
 import csv
 import json
 
+import cv2
 import fakes
 import numpy as np
 import pytest
 
-from f2depth.camera import NYU_RGB_K, NYU_SIZE_HW, crop_resize_intrinsics
+from f2depth.camera import NYU_RGB_DIST, NYU_RGB_K, NYU_SIZE_HW, crop_resize_intrinsics
 from f2depth.data.errors import DataError
 from f2depth.data.prepare import (
     PrepareConfig,
     SuperpixelParams,
     crop_and_resize,
+    crop_border,
     prepare,
+    prepare_image,
     read_scene_list,
     room_of,
     select_train_scenes,
     superpixel_stats,
     superpixels,
+    undistort_crop,
 )
 from f2depth.data.prepared import PreparedSet
 
@@ -177,3 +181,18 @@ def test_superpixels_on_flat_blocks():
     assert len({int(b[0, 0]) for b in inner}) == 16  # and no two blocks share one
     n, share = superpixel_stats(labels, min_area=500)
     assert n == labels.max() + 1 and share > 0.9
+
+
+def test_full_resolution_crop_is_the_image_prepare_resizes():
+    """undistort_crop (the keypoints' input, P²Net §3.1) and prepare_image share one pipeline."""
+    raw = fakes.smooth_image(NYU_SIZE_HW, seed=3, cells=40)
+    full = undistort_crop(raw, 16)
+    assert full.shape == (448, 608, 3) and full.dtype == np.uint8
+    np.testing.assert_array_equal(full, cv2.undistort(raw, NYU_RGB_K, NYU_RGB_DIST)[16:464, 16:624])
+    np.testing.assert_array_equal(prepare_image(raw, 16, HW), crop_and_resize(full, 0, HW))
+    np.testing.assert_array_equal(
+        prepare_image(raw, 16, HW),
+        cv2.resize(np.ascontiguousarray(full), (HW[1], HW[0]), interpolation=cv2.INTER_AREA))
+    assert undistort_crop(raw, 0).shape == (480, 640, 3)
+    with pytest.raises(ValueError, match="crop 240 leaves nothing"):
+        crop_border(raw, 240)

@@ -1,4 +1,6 @@
-"""The `keypoints` stage on a small fake prepared set written in the docs/formats.md layout."""
+"""The `keypoints` stage on a small fake prepared set written in the docs/formats.md layout, with
+``keypoints.source: prepared`` (selection on the prepared images; the full-resolution source, which
+re-reads the raw frames, is tested in test_keypoints_source.py)."""
 
 from __future__ import annotations
 
@@ -53,8 +55,8 @@ def test_stage_end_to_end(tmp_path):
     images = fake_prepared(tmp_path / "data" / "prepared")
     params = {
         "data": {"prepared": "data/prepared", "keypoints": "data/keypoints"},
-        "keypoints": {"preset": "p2net", "options": {}, "sequence": False, "workers": 2, "overlays": 3,
-                      "overlay_dir": "reports/figures/keypoints"},
+        "keypoints": {"source": "prepared", "preset": "p2net", "options": {}, "sequence": False, "workers": 2,
+                      "overlays": 3, "overlay_dir": "reports/figures/keypoints"},
     }
     (tmp_path / "params.yaml").write_text(yaml.safe_dump(params))
     run = subprocess.run([sys.executable, str(ROOT / "stages" / "keypoints.py"), "params.yaml"], cwd=tmp_path,
@@ -69,6 +71,7 @@ def test_stage_end_to_end(tmp_path):
     metrics = json.loads((tmp_path / "metrics" / "keypoints.json").read_text())
     counts = kp.counts()
     assert metrics["frames"] == 10 and metrics["preset"] == "p2net" and metrics["size"] == [H, W]
+    assert metrics["source"] == "prepared" and metrics["selector_input"] == [H, W]
     assert metrics["points_per_image"]["min"] == 0 == counts.min()
     assert metrics["points_per_image"]["max"] == counts.max()
     assert abs(metrics["points_per_image"]["mean"] - counts.mean()) < 1e-9
@@ -84,10 +87,10 @@ def test_sequence_mode_carries_pot_within_scenes(tmp_path):
     fake_prepared(tmp_path / "prepared", frames_per_scene=3)
     out = tmp_path / "kp.npz"
     fresh = extract_keypoints(tmp_path / "prepared", out, None, "dso", {"density": 300}, workers=1,
-                              progress=False)
+                              progress=False, source="prepared")
     fresh_points = [KeypointFile(out).points(i).copy() for i in range(6)]
     seq = extract_keypoints(tmp_path / "prepared", out, None, "dso", {"density": 300}, workers=1,
-                            sequence=True, progress=False)
+                            sequence=True, progress=False, source="prepared")
     seq_points = [KeypointFile(out).points(i) for i in range(6)]
     assert fresh["sequence"] is False and seq["sequence"] is True
     assert fresh["options"]["density"] == 300 and seq["overlays"] == 0

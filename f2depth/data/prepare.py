@@ -78,29 +78,44 @@ class PrepareConfig:
 
 # ---- per-image operations ---------------------------------------------------------------------------
 
-def crop_and_resize(image: np.ndarray, crop: int, hw: tuple[int, int], nearest: bool = False) -> np.ndarray:
-    """Cut ``crop`` px from every side of an (H, W[, C]) array, then resize to ``hw``.
+def crop_border(image: np.ndarray, crop: int) -> np.ndarray:
+    """Cut ``crop`` px from every side of an (H, W[, C]) array (a view)."""
+    h, w = image.shape[:2]
+    if crop < 0 or 2 * crop >= min(h, w):
+        raise ValueError(f"crop {crop} leaves nothing of a {h}×{w} image")
+    return image[crop:h - crop, crop:w - crop]
+
+
+def resize_image(image: np.ndarray, hw: tuple[int, int], nearest: bool = False) -> np.ndarray:
+    """Resize an (H, W[, C]) array to ``hw`` as prepare does.
 
     Images: ``INTER_AREA`` when shrinking, bilinear otherwise. ``nearest=True`` (depth): exact
     nearest-neighbour on pixel centres (``INTER_NEAREST_EXACT``; plain ``INTER_NEAREST`` is offset by
     up to half a source pixel, which would misalign depth and image).
     """
-    h, w = image.shape[:2]
-    if 2 * crop >= min(h, w):
-        raise ValueError(f"crop {crop} leaves nothing of a {h}×{w} image")
-    c = image[crop:h - crop, crop:w - crop]
     if nearest:
         interp = cv2.INTER_NEAREST_EXACT
-    elif hw[0] <= c.shape[0] and hw[1] <= c.shape[1]:
+    elif hw[0] <= image.shape[0] and hw[1] <= image.shape[1]:
         interp = cv2.INTER_AREA
     else:
         interp = cv2.INTER_LINEAR
-    return cv2.resize(np.ascontiguousarray(c), (hw[1], hw[0]), interpolation=interp)
+    return cv2.resize(np.ascontiguousarray(image), (hw[1], hw[0]), interpolation=interp)
+
+
+def crop_and_resize(image: np.ndarray, crop: int, hw: tuple[int, int], nearest: bool = False) -> np.ndarray:
+    """Cut ``crop`` px from every side of an (H, W[, C]) array, then :func:`resize_image` it to ``hw``."""
+    return resize_image(crop_border(image, crop), hw, nearest)
+
+
+def undistort_crop(raw_rgb: np.ndarray, crop: int) -> np.ndarray:
+    """Distorted NYU raw frame (480, 640, 3) → undistorted RGB uint8 with ``crop`` px cut from every side,
+    at full resolution ((448, 608, 3) for crop 16): the image P²Net selects its keypoints on (P²Net §3.1)."""
+    return crop_border(undistort_image(raw_rgb, NYU_RGB_K, NYU_RGB_DIST), crop)
 
 
 def prepare_image(raw_rgb: np.ndarray, crop: int, hw: tuple[int, int]) -> np.ndarray:
     """Distorted NYU raw frame (480, 640, 3) → undistorted, cropped, resized RGB uint8 (H, W, 3)."""
-    return crop_and_resize(undistort_image(raw_rgb, NYU_RGB_K, NYU_RGB_DIST), crop, hw)
+    return resize_image(undistort_crop(raw_rgb, crop), hw)
 
 
 def superpixels(rgb: np.ndarray, params: SuperpixelParams) -> np.ndarray:

@@ -131,6 +131,22 @@ class PreparedSet:
     def hw(self) -> tuple[int, int]:
         return self.height, self.width
 
+    @property
+    def crop(self) -> int:
+        """Pixels prepare cut from every side of the undistorted raw frame (camera.json ``crop``)."""
+        path = self.root / "camera.json"
+        try:
+            crop = int(self.camera["crop"])
+        except (KeyError, TypeError, ValueError):
+            raise DataError(path, "no integer 'crop'", _FIX) from None
+        if crop < 0:
+            raise DataError(path, f"crop {crop} is negative", _FIX)
+        return crop
+
+    def raw_path(self, frame_id: str, nyu_raw: str | os.PathLike) -> Path:
+        """The NYU raw frame a prepared frame was made from: ``nyu_raw / raw_file`` (not checked)."""
+        return Path(nyu_raw) / self.frame(frame_id).raw_file
+
     def frame(self, frame_id: str) -> FrameRecord:
         try:
             return self.frames[self._frame_index[frame_id]]

@@ -37,7 +37,8 @@ def rescale_points(points: np.ndarray, from_size: tuple[int, int], to_size: tupl
 class KeypointSelector:
     """DSO's pixel selector with a preset; the cell size ``pot`` carries over from image to image.
 
-    ``selector(gray)`` returns (N, 3) int64 x, y, level in raster order at the size of ``gray``.
+    ``selector(gray, out_hw=None)`` returns (N, 3) int64 x, y, level in raster order at ``out_hw``
+    (default: the size of ``gray``).
     ``last`` holds the :class:`MapsResult` of the latest call (at the working size).
     """
 
@@ -46,12 +47,18 @@ class KeypointSelector:
         self.pot = self.preset.pot
         self.last: MapsResult | None = None
 
-    def __call__(self, gray: np.ndarray) -> np.ndarray:
+    def __call__(self, gray: np.ndarray, out_hw: tuple[int, int] | None = None) -> np.ndarray:
+        """Keypoints (N, 3) int64 x, y, level of ``gray`` (H, W).
+
+        They are selected at the preset's working size (or at (H, W)) and mapped to ``out_hw`` (default:
+        (H, W)) with P²Net's integer arithmetic ``x·W_out // W_work``, ``y·H_out // H_work``: the
+        keypoints of a full-resolution frame at the training size (P²Net §3.1).
+        """
         gray = _check_gray(gray)
         cfg = self.preset
-        size = gray.shape
+        out_hw = tuple(gray.shape) if out_hw is None else (int(out_hw[0]), int(out_hw[1]))
         work = gray
-        if cfg.work_size is not None and tuple(cfg.work_size) != size:
+        if cfg.work_size is not None and tuple(cfg.work_size) != gray.shape:
             height, width = cfg.work_size
             work = cv2.resize(gray, (width, height), interpolation=cv2.INTER_LINEAR)
         prep = prepare(work, cfg.th_factor, cfg.direction, cfg.hist_add)
@@ -61,19 +68,21 @@ class KeypointSelector:
         points = result.points
         if cfg.max_points is not None:
             points = points[: cfg.max_points]
-        if work.shape != size:
-            points = rescale_points(points, work.shape, size)
+        if work.shape != out_hw:
+            points = rescale_points(points, work.shape, out_hw)
         return points
 
 
-def select_pixels(gray: np.ndarray, preset: str | Preset = "dso", **overrides) -> np.ndarray:
-    """Keypoints of an 8-bit grey image (H, W): (N, 3) int64 x, y, level (0/1/2) in raster order.
+def select_pixels(gray: np.ndarray, preset: str | Preset = "dso", out_hw: tuple[int, int] | None = None,
+                  **overrides) -> np.ndarray:
+    """Keypoints of an 8-bit grey image (H, W): (N, 3) int64 x, y, level (0/1/2) in raster order,
+    mapped to ``out_hw`` (default (H, W)) with P²Net's integer arithmetic.
 
     A fresh selector (pot starts at ``pot``, 3 by default). ``preset`` ``"dso"`` or ``"p2net"``;
     overrides: ``density``, ``recursions``, ``direction``, ``th_factor``, ``pot`` (and the other
     :class:`Preset` fields). A flat image gives an empty (0, 3) array.
     """
-    return KeypointSelector(preset, **overrides)(gray)
+    return KeypointSelector(preset, **overrides)(gray, out_hw)
 
 
 def select_raw(gray: np.ndarray, pot: int, direction: bool = True) -> np.ndarray:

@@ -1,5 +1,16 @@
 """The ``keypoints`` stage's work: select keypoints on every prepared frame, in worker processes.
 
+``source`` is the image the selector sees:
+
+* ``full_resolution`` (default, P²Net §3.1): the frame's NYU raw file (``data.nyu_raw`` / frames.csv
+  ``raw_file``), undistorted and cropped by prepare's own functions with camera.json's ``crop`` — the
+  448×608 full-resolution crop —, converted to grey. The preset's working size (P²Net: 640×480,
+  bilinear) applies to it and the points are mapped to the training size with P²Net's integer
+  arithmetic. Each raw frame is also re-prepared and compared with the prepared image, so a
+  ``data.nyu_raw`` that is not the data prepare read fails loudly instead of giving misplaced points.
+* ``prepared``: the prepared image at the training size (the behaviour before the full-resolution
+  source; upsampling lowers the gradients, so a different set of pixels passes DSO's thresholds).
+
 Frame ids in the output are the rows of frames.csv (``PreparedSet.frame_index``). With ``sequence``
 the selector's cell size carries over from frame to frame within a scene (DSO's persistent selector;
 one task per scene); otherwise every frame gets a fresh selector (P²Net).
@@ -11,6 +22,7 @@ import multiprocessing
 import os
 import time
 from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -18,7 +30,11 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
+from f2depth.camera import NYU_SIZE_HW
+from f2depth.data.errors import DataError
 from f2depth.data.images import read_image
+from f2depth.data.nyu_raw import read_frame
+from f2depth.data.prepare import resize_image, undistort_crop
 from f2depth.data.prepared import PreparedSet
 from f2depth.io import imwrite
 from f2depth.keypoints.api import KeypointSelector
@@ -27,22 +43,69 @@ from f2depth.keypoints.presets import get_preset
 from f2depth.keypoints.store import save_keypoints
 
 CHUNK = 8  # frames per task without ``sequence``
+NYU_H, NYU_W = NYU_SIZE_HW
+SOURCES = ("full_resolution", "prepared")
+#: Largest mean |Δ| (grey levels) between a prepared image and its raw frame prepared again; more means
+#: the raw file is not the one prepare read (OpenCV versions differ by far less than one level).
+MATCH_TOLERANCE = 1.0
+_RAW_FIX = ("data.nyu_raw must be the NYU raw folder data.prepared was made from: fix it or re-run "
+            "`dvc repro prepare`")
+
+
+def full_resolution_gray(raw_path: str | os.PathLike, crop: int) -> tuple[np.ndarray, np.ndarray]:
+    """A raw NYU frame → (grey uint8 (480−2·crop, 640−2·crop) of the undistorted crop, its RGB).
+
+    The grey conversion is P²Net's ``cv2.cvtColor(RGB2GRAY)`` on the full-resolution crop (P²Net §3.1).
+    """
+    path = Path(raw_path)
+    if not path.is_file():
+        raise DataError(path, "raw frame not found (frames.csv raw_file under data.nyu_raw)",
+                        f"{_RAW_FIX}, or set keypoints.source: prepared")
+    rgb = undistort_crop(read_frame(path), crop)
+    return cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY), rgb
+
+
+def raw_mismatch(full_rgb: np.ndarray, prepared_rgb: np.ndarray) -> float:
+    """Mean |Δ| (grey levels) between a prepared image (H, W, 3) and the full-resolution crop resized as
+    prepare resizes it."""
+    again = resize_image(full_rgb, prepared_rgb.shape[:2])
+    return float(np.abs(again.astype(np.int16) - prepared_rgb.astype(np.int16)).mean())
+
+
+@dataclass(frozen=True)
+class _Task:
+    images: list[str]  # prepared images
+    raws: list[str]  # their raw frames ("" with source ``prepared``)
+    hw: tuple[int, int]
+    crop: int
+    preset: str
+    options: dict[str, Any]
+    carry: bool
+    source: str
 
 
 def _init_worker() -> None:
     cv2.setNumThreads(1)
 
 
-def _select_task(task: tuple[list[str], tuple[int, int], str, dict[str, Any], bool]) -> list[np.ndarray]:
-    """Keypoints (n, 3) int16 of each image file of a task (a chunk of frames or one scene)."""
-    paths, hw, preset, options, carry = task
-    selector = KeypointSelector(preset, **options)
+def _select_task(task: _Task) -> list[tuple[np.ndarray, float | None]]:
+    """(keypoints (n, 3) int16 at the training size, raw-vs-prepared mismatch or None) of each frame."""
+    selector = KeypointSelector(task.preset, **task.options)
     out = []
-    for path in paths:
-        gray = cv2.cvtColor(read_image(path, hw), cv2.COLOR_RGB2GRAY)
-        if not carry:
+    for image, raw in zip(task.images, task.raws):
+        prepared = read_image(image, task.hw)
+        mismatch = None
+        if task.source == "full_resolution":
+            gray, full = full_resolution_gray(raw, task.crop)
+            mismatch = raw_mismatch(full, prepared)
+            if mismatch > MATCH_TOLERANCE:
+                raise DataError(raw, f"prepared again it differs from {image} by {mismatch:.1f} grey levels "
+                                "on average: not the frame prepare read", _RAW_FIX)
+        else:
+            gray = cv2.cvtColor(prepared, cv2.COLOR_RGB2GRAY)
+        if not task.carry:
             selector.pot = selector.preset.pot
-        out.append(selector(gray).astype(np.int16))
+        out.append((selector(gray, task.hw).astype(np.int16), mismatch))
     return out
 
 
@@ -75,14 +138,27 @@ def extract_keypoints(
     sequence: bool = False,
     overlays: int = 0,
     progress: bool = True,
+    source: str = "full_resolution",
+    nyu_raw: str | os.PathLike | None = None,
 ) -> dict[str, Any]:
-    """Select keypoints on every frame of ``prepared``, write ``out_file`` and overlays; return metrics."""
+    """Select keypoints on every frame of ``prepared``, write ``out_file`` and overlays; return metrics.
+
+    ``source`` ``full_resolution`` (needs ``nyu_raw``, the folder frames.csv's ``raw_file`` is relative
+    to) or ``prepared``; see the module docstring.
+    """
     start = time.perf_counter()
+    if source not in SOURCES:
+        raise ValueError(f"unknown keypoint source {source!r}; choose one of {', '.join(SOURCES)}")
+    if source == "full_resolution" and nyu_raw is None:
+        raise ValueError("source 'full_resolution' needs nyu_raw, the NYU raw folder of the prepared set")
     options = dict(options or {})
     config = get_preset(preset, **options)  # validates the options before any work
     data = PreparedSet(prepared)
     frames = data.frames
     paths = [str(data.root / f.image) for f in frames]
+    full = source == "full_resolution"
+    crop = data.crop if full else 0
+    raws = [str(data.raw_path(f.frame_id, nyu_raw)) if full else "" for f in frames]
     if sequence:
         groups: dict[str, list[int]] = {}
         for i, f in enumerate(frames):
@@ -90,20 +166,23 @@ def extract_keypoints(
         index_groups = list(groups.values())
     else:
         index_groups = [list(range(i, min(i + CHUNK, len(frames)))) for i in range(0, len(frames), CHUNK)]
-    tasks = [([paths[i] for i in g], data.hw, preset, options, sequence) for g in index_groups]
+    tasks = [_Task([paths[i] for i in g], [raws[i] for i in g], data.hw, crop, preset, options, sequence,
+                   source) for g in index_groups]
     points = [np.zeros((0, 3), np.int16)] * len(frames)
+    mismatch: list[float | None] = [None] * len(frames)
     with tqdm(total=len(frames), desc=f"keypoints ({preset})", unit="frame", disable=not progress) as bar:
         if workers > 1 and len(tasks) > 1:
             n_proc = min(workers, len(tasks))
             with multiprocessing.get_context().Pool(n_proc, initializer=_init_worker) as pool:
-                for group, pts in zip(index_groups, pool.imap(_select_task, tasks)):
-                    for i, p in zip(group, pts):
-                        points[i] = p
+                results = pool.imap(_select_task, tasks)
+                for group, res in zip(index_groups, results):
+                    for i, (p, m) in zip(group, res):
+                        points[i], mismatch[i] = p, m
                     bar.update(len(group))
         else:
             for group, task in zip(index_groups, tasks):
-                for i, p in zip(group, _select_task(task)):
-                    points[i] = p
+                for i, (p, m) in zip(group, _select_task(task)):
+                    points[i], mismatch[i] = p, m
                 bar.update(len(group))
     frame_ids = [data.frame_index(f.frame_id) for f in frames]
     save_keypoints(out_file, frame_ids, points)
@@ -118,13 +197,17 @@ def extract_keypoints(
             imwrite(target, cv2.cvtColor(picture, cv2.COLOR_RGB2BGR))
             written.append(str(target))
     counts = np.array([len(p) for p in points], np.int64)
+    checked = [m for m in mismatch if m is not None]
     return {
         "preset": preset,
         "options": {k: v for k, v in vars(config).items() if k != "name"},
+        "source": source,
+        "selector_input": [NYU_H - 2 * crop, NYU_W - 2 * crop] if full else list(data.hw),
         "sequence": bool(sequence),
         "frames": len(frames),
         "size": list(data.hw),
         **_summary(counts, points),
+        "raw_vs_prepared_max_diff": round(max(checked), 4) if checked else None,
         "overlays": len(written),
         "workers": int(workers),
         "seconds": round(time.perf_counter() - start, 3),
