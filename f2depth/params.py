@@ -48,3 +48,41 @@ def resolve_device(name: str) -> str:
     if name.startswith("cuda") and not torch.cuda.is_available():
         raise ParamsError(f"device '{name}' requested but CUDA is not available; set device: cpu or auto")
     return name
+
+
+#: The pretrained starts of the paper's model: params key → what file it must name.
+PRETRAINED_STARTS = {
+    "train_depth.imagenet_weights": "a torchvision resnet18 ImageNet state_dict (.pth), the start of both "
+                                    "ResNet-18s (P²Net's weights_init: pretrained)",
+    "flow_pretrain.checkpoint": "ARFlow's 2-frame Sintel model Sintel/pwclite_ar.tar (pwclite_ar_mv is a "
+                                "3-frame model and does not load), the start of the flow network",
+}
+
+
+def pretrained_starts(params: dict[str, Any], keys: tuple[str, ...]) -> dict[str, str | None]:
+    """The pretrained weight files ``keys`` (of :data:`PRETRAINED_STARTS`) name, None where random.
+
+    With ``allow_random_init: false`` (the ``paper`` profile) every key must name an existing file: the
+    paper starts both ResNets from ImageNet and PWC-Lite from ARFlow's Sintel model, so a run without them
+    would not be the paper's model. Raises :class:`ParamsError` (one line: the key, the file expected and
+    the opt-out) before any work is done. With ``allow_random_init: true`` (the CPU default) an unset key
+    means a random start.
+    """
+    path = params.get("_file", "params.yaml")
+    allow = get(params, "allow_random_init")
+    if not isinstance(allow, bool):
+        raise ParamsError(f"{path}: allow_random_init must be true or false, got {allow!r}")
+    out: dict[str, str | None] = {}
+    for key in keys:
+        value = get(params, key, None)
+        if value in (None, ""):
+            if not allow:
+                raise ParamsError(f"{path}: {key} is not set; the paper's model needs "
+                                  f"{PRETRAINED_STARTS[key]}. Point {key} at that file, or set "
+                                  "allow_random_init: true to train from random weights")
+            out[key] = None
+            continue
+        if not Path(value).is_file():
+            raise ParamsError(f"{path}: {key} = {value}: file not found; it must be {PRETRAINED_STARTS[key]}")
+        out[key] = str(value)
+    return out

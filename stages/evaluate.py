@@ -9,8 +9,9 @@ For each seed k of `train_depth.seeds`, models/depth_NAME/seed<k>.pt runs the NY
 timed at `evaluate.timing_height` × `timing_width` (batch 1, median of `timing_repeats` runs after
 `timing_warmup`). Writes
 - metrics/evaluate/NAME.json: the mean over seeds (nyu.*, nyu_pp.*, sevenscenes.* = mean over all test
-  frames as the paper's Average row, campus.* = mean of the scene rows, ms, ms_pp), `n_seeds` and
-  `per_seed`;
+  frames as the paper's Average row, campus.* = mean of the scene rows, ms, ms_pp), `n_seeds`,
+  `per_seed`, `decoder_upsample` (`evaluate.decoder_upsample`: the depth decoder is rebuilt with it) and
+  `trained_with` (the flow model and loss weights the first seed's checkpoint recorded; Table 5's marks);
 - reports/eval/NAME/: details.json (per-scene rows, std over images, settings, timings per seed),
   nyu.csv / sevenscenes.csv / campus.csv (per-image metrics of every seed, ± PP) and figures.npz (the
   first seed's predictions on a few test images, for the tables stage's figures);
@@ -34,14 +35,15 @@ from f2depth.data.sevenscenes import SevenScenesSet
 from f2depth.depth import load_checkpoint, read_checkpoint
 from f2depth.eval.suite import SuiteConfig, evaluate_model, limit, metrics_document, model_disparity, rows_csv
 from f2depth.io import save_npz, write_json, write_text
+from f2depth.stage import run_stage
 
 TRAINED_KEYS = ("flow_model", "weights", "lambda_sources", "epochs", "batch_size", "seeds")
 
 
 def suite_config(p: dict, device: str) -> SuiteConfig:
     e = P.get(p, "evaluate")
-    keys = ("height", "width", "interpolation", "upsample", "batch_size", "timing_height", "timing_width",
-            "timing_repeats", "timing_warmup", "figure_images", "figure_width")
+    keys = ("height", "width", "interpolation", "upsample", "decoder_upsample", "batch_size", "timing_height",
+            "timing_width", "timing_repeats", "timing_warmup", "figure_images", "figure_width")
     return SuiteConfig(nyu_crop=str(P.get(p, "evaluate.nyu_crop")), device=device,
                        datasets=tuple(P.get(p, "evaluate.datasets")), progress=True,
                        **{k: e[k] for k in keys if k in e})
@@ -88,7 +90,7 @@ def main(argv: list[str]) -> None:
     with tracking.stage_run("evaluate", p, variant=args.variant, sections=("evaluate",)) as run:
         run.set_tags({"seeds": seeds})
         for seed, path in zip(seeds, files):
-            model = load_checkpoint(path, map_location=cfg.device).eval()
+            model = load_checkpoint(path, cfg.device, decoder_upsample=cfg.decoder_upsample).eval()
             net_hw = (model.config.height, model.config.width)
             with torch.no_grad():
                 r = evaluate_model(model_disparity(model), sets, cfg, net_hw)
@@ -98,7 +100,10 @@ def main(argv: list[str]) -> None:
                 rows.setdefault(name, []).extend({"seed": seed, **row} for row in items)
             kept = r.kept if kept is None else kept
             print(f"evaluate[{args.variant}] seed {seed}: " + summary_line(r.headline))
-        doc = metrics_document(args.variant, seeds, headlines)
+        trained = read_checkpoint(files[0])["params"]
+        doc = metrics_document(args.variant, seeds, headlines) | {
+            "decoder_upsample": cfg.decoder_upsample,
+            "trained_with": {"flow_model": trained.get("flow_model"), "weights": trained.get("weights")}}
         sizes = {name: len(s) for name, s in sets.items()}
         write_json(out_dir / "details.json", {"variant": args.variant, "model_dir": str(model_dir),
                                               "test_set_sizes": sizes, "settings": vars(cfg) | {
@@ -109,7 +114,6 @@ def main(argv: list[str]) -> None:
         write_json(Path(args.metrics) / f"{args.variant}.json", doc)
         run.log_metrics({k: v for k, v in doc.items() if k != "variant"})
         if run.active:  # what the variant was trained with, for comparing runs in MLflow
-            trained = read_checkpoint(files[0])["params"]
             run.log_params({"test_set_sizes": sizes, "trained": {k: trained.get(k) for k in TRAINED_KEYS}})
         run.log_artifact(Path(args.metrics) / f"{args.variant}.json")
         run.log_artifact(out_dir / "details.json")
@@ -124,4 +128,4 @@ def summary_line(h: dict) -> str:
 
 
 if __name__ == "__main__":
-    main(sys.argv)
+    run_stage("evaluate", main, sys.argv)

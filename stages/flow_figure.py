@@ -16,6 +16,7 @@ from f2depth.data.prepared import PreparedSet
 from f2depth.flow.checkpoint import load_flow_model
 from f2depth.flow.figures import comparison_rows, render_flow_comparison
 from f2depth.flow.finetune_data import gt_pairs, split_pairs
+from f2depth.stage import run_stage
 
 TITLES = {"full": "Fine-tuned full", "patch": "Fine-tuned patch (F²Depth)"}
 
@@ -47,4 +48,4 @@ def main(argv: list[str]) -> None:
 
 
 if __name__ == "__main__":
-    main(sys.argv)
+    run_stage("flow_figure", main, sys.argv)

@@ -26,6 +26,7 @@ from f2depth.flow import PWCLite, load_arflow_checkpoint, save_flow_model
 from f2depth.flow.pretrain import PretrainConfig, clear_resume, pretrain
 from f2depth.flow.validate import evaluate_prepared, evaluate_sintel
 from f2depth.io import write_json
+from f2depth.stage import run_stage
 
 METRICS = "metrics/flow_pretrain.json"
 
@@ -42,6 +43,7 @@ def split_sequences(p: dict) -> tuple[list[str], list[str]]:
 def main(argv: list[str]) -> None:
     p = P.load(argv[1] if len(argv) > 1 else P.DEFAULT_PARAMS)
     t0 = time.perf_counter()
+    P.pretrained_starts(p, ("flow_pretrain.checkpoint",))  # the paper's start required unless allowed
     section = P.get(p, "flow_pretrain")
     if P.get(p, "flow_pretrain.source") not in ("synthetic", "sintel"):
         raise P.ParamsError(f"{p['_file']}: flow_pretrain.source must be 'synthetic' or 'sintel'")
@@ -53,6 +55,7 @@ def main(argv: list[str]) -> None:
                          lr=float(section["lr"]), seed=int(P.get(p, "seed")), init=str(section["init"]))
     figures, n_fig = P.get(p, "flow_pretrain.figure_dir"), int(P.get(p, "flow_pretrain.figures"))
     metrics: dict = {"source": "arflow" if section.get("checkpoint") else str(section["source"]),
+                     "random_init": not section.get("checkpoint"),
                      "train_sequences": train_seqs, "heldout_sequences": test_seqs}
     with tracking.stage_run("flow_pretrain", p) as run:
         if section.get("checkpoint"):
@@ -93,4 +96,4 @@ def main(argv: list[str]) -> None:
 
 
 if __name__ == "__main__":
-    main(sys.argv)
+    run_stage("flow_pretrain", main, sys.argv)

@@ -18,6 +18,7 @@ from f2depth import tracking
 from f2depth.data.errors import DataError
 from f2depth.io import write_json
 from f2depth.keypoints.extract import SOURCES, extract_keypoints
+from f2depth.stage import run_stage
 
 METRICS = "metrics/keypoints.json"
 
@@ -53,4 +54,4 @@ def main(argv: list[str]) -> None:
 
 
 if __name__ == "__main__":
-    main(sys.argv)
+    run_stage("keypoints", main, sys.argv)

@@ -8,6 +8,7 @@ from f2depth import params as P
 from f2depth import tracking
 from f2depth.data.prepare import PrepareConfig, SuperpixelParams, prepare
 from f2depth.io import write_json
+from f2depth.stage import run_stage
 
 METRICS = "metrics/prepare.json"
 
@@ -43,4 +44,4 @@ def main(argv: list[str]) -> None:
 
 
 if __name__ == "__main__":
-    main(sys.argv)
+    run_stage("prepare", main, sys.argv)

@@ -16,12 +16,13 @@ from pathlib import Path
 from f2depth import params as P
 from f2depth import tracking
 from f2depth.io import write_json, write_text
+from f2depth.stage import run_stage
 from f2depth.synth import OutputPaths, SynthConfig, generate
 
 METRICS = Path("metrics/synth.json")
 
 
-def main(argv: list[str]) -> int:
+def main(argv: list[str]) -> None:
     params = P.load(argv[1] if len(argv) > 1 else P.DEFAULT_PARAMS)
     source = params["_file"]
     data_source = P.get(params, "data_source")
@@ -32,7 +33,7 @@ def main(argv: list[str]) -> int:
         write_text(root / "synth_gt" / "README.txt", note)
         write_json(METRICS, {"data_source": "real", "generated": False, "frames": 0})
         print("synth: data_source is 'real', nothing generated")
-        return 0
+        return
     if data_source != "synthetic":
         raise P.ParamsError(f"{source}: data_source must be 'synthetic' or 'real', got {data_source!r}")
     cfg = SynthConfig.from_params(P.get(params, "synth"), source)
@@ -42,8 +43,7 @@ def main(argv: list[str]) -> int:
     write_json(METRICS, metrics)
     tracking.mirror_stage("synth", params, metrics)
     print(f"synth: {metrics['frames']} frames in {metrics['seconds']:.1f} s")
-    return 0
 
 
 if __name__ == "__main__":
-    sys.exit(main(sys.argv))
+    run_stage("synth", main, sys.argv)

@@ -21,6 +21,7 @@ from f2depth import tracking
 from f2depth.report.build import write_report
 from f2depth.report.paper_tables import build_tables
 from f2depth.report.results import flow_epe, load_variants, read_history, read_json
+from f2depth.stage import run_stage
 
 
 def main(argv: list[str]) -> None:
@@ -54,4 +55,4 @@ def main(argv: list[str]) -> None:
 
 
 if __name__ == "__main__":
-    main(sys.argv)
+    run_stage("tables", main, sys.argv)

@@ -21,6 +21,7 @@ from pathlib import Path
 from f2depth import params as P
 from f2depth.eval.tables import format_value as fmt
 from f2depth.losses import NonFiniteLossError
+from f2depth.stage import run_stage
 from f2depth.train.distributed import cleanup, init_from_env
 from f2depth.train.run import train_variant
 from f2depth.train.settings import settings_from_params
@@ -64,4 +65,4 @@ def main(argv: list[str]) -> None:
 
 
 if __name__ == "__main__":
-    main(sys.argv)
+    run_stage("train_depth", main, sys.argv)

@@ -35,14 +35,14 @@ def load_stage():
     return stage
 
 
-def write_model(path: Path, seed: int, constant: bool = False) -> None:
+def write_model(path: Path, seed: int, constant: bool = False, params: dict | None = None) -> None:
     torch.manual_seed(seed)
     model = DepthModel(DepthModelConfig(*NET_HW))
     if constant:  # sigmoid(0.3) everywhere: a constant depth map
         with torch.no_grad():
             model.depth_decoder.dispconv.weight.zero_()
             model.depth_decoder.dispconv.bias.fill_(0.3)
-    save_checkpoint(path, model)
+    save_checkpoint(path, model, params=params)
 
 
 @pytest.fixture
@@ -132,6 +132,31 @@ def test_constant_model_on_constant_depth_is_perfect_through_the_stage(tree):
         assert m[group]["a1"] == 1.0, group
     with np.load(tree / "reports" / "full" / "figures.npz") as z:
         assert z.files == []
+
+
+def test_decoder_upsample_is_applied_and_recorded_with_the_training_weights(tree):
+    """evaluate.decoder_upsample rebuilds the decoder (bilinear ×2 upsampling, as P²Net's NYU evaluation)
+    and the metrics record it with the loss weights the checkpoint was trained with (Table 5's marks)."""
+    weights = {"lambda1": 0.001, "lambda2": 0.05, "lambda_rigid": 1.0, "lambda3": 0.0}
+    write_model(tree / "models" / "depth_full" / "seed0.pt", 0,
+                params={"weights": weights, "flow_model": "models/flow_patch.pt", "epochs": 2})
+    params = yaml.safe_load((tree / "params.yaml").read_text())
+    params["train_depth"]["seeds"] = [0]
+    params["evaluate"]["datasets"] = ["nyu"]
+    docs = {}
+    for mode in ("nearest", "bilinear"):
+        params["evaluate"]["decoder_upsample"] = mode
+        (tree / "params.yaml").write_text(yaml.safe_dump(params))
+        docs[mode] = run(tree)
+        assert docs[mode]["decoder_upsample"] == mode
+        assert docs[mode]["trained_with"] == {"flow_model": "models/flow_patch.pt", "weights": weights}
+        details = json.loads((tree / "reports" / "full" / "details.json").read_text())
+        assert details["settings"]["decoder_upsample"] == mode
+    assert docs["nearest"]["nyu"]["abs_rel"] != pytest.approx(docs["bilinear"]["nyu"]["abs_rel"], rel=1e-6)
+    params["evaluate"]["decoder_upsample"] = "cubic"
+    (tree / "params.yaml").write_text(yaml.safe_dump(params))
+    with pytest.raises(ValueError, match="evaluate.decoder_upsample is 'cubic'"):
+        run(tree)
 
 
 def test_missing_seed_model_names_the_file_and_the_fix(tree):

@@ -45,14 +45,25 @@ def seed_details(base: float) -> dict:
     }  # fmt: skip
 
 
-def write_inputs(root: Path) -> Path:
+#: The loss weights each variant's model was trained with (what evaluate records as ``trained_with``).
+WEIGHTS = {
+    "full": {"lambda1": 0.001, "lambda2": 0.05, "lambda_rigid": 1.0, "lambda3": 3.0},
+    "no_feature": {"lambda1": 0.001, "lambda2": 0.05, "lambda_rigid": 1.0, "lambda3": 0.0},
+    "baseline": {"lambda1": 0.001, "lambda2": 0.05, "lambda_rigid": 0.0, "lambda3": 0.0},
+    "flow_pretrained": {"lambda1": 0.001, "lambda2": 0.05, "lambda_rigid": 1.0, "lambda3": 3.0},
+    "flow_full_ft": {"lambda1": 0.001, "lambda2": 0.05, "lambda_rigid": 1.0, "lambda3": 3.0},
+}
+
+
+def write_inputs(root: Path, weights: dict[str, dict[str, float]] = WEIGHTS) -> Path:
     """metrics/evaluate, reports/eval, flow metrics and histories for every variant, two seeds each:
-    variant i, seed s has base AbsRel 0.1 + 0.01·i + 0.002·s."""
+    variant i, seed s has base AbsRel 0.1 + 0.01·i + 0.002·s; trained with ``weights[variant]``."""
     rng = np.random.default_rng(0)
     for i, v in enumerate(VARIANTS):
         bases = {s: 0.1 + 0.01 * i + 0.002 * s for s in (0, 1)}
         per_seed = {f"seed{s}": headline(b) for s, b in bases.items()}
-        doc = {**headline(0.1 + 0.01 * i + 0.001), "n_seeds": 2, "per_seed": per_seed, "variant": v}
+        doc = {**headline(0.1 + 0.01 * i + 0.001), "n_seeds": 2, "per_seed": per_seed, "variant": v,
+               "decoder_upsample": "bilinear", "trained_with": {"flow_model": None, "weights": weights[v]}}
         (root / "metrics" / "evaluate").mkdir(parents=True, exist_ok=True)
         (root / "metrics" / "evaluate" / f"{v}.json").write_text(json.dumps(doc))
         out = root / "reports" / "eval" / v
@@ -153,6 +164,25 @@ def test_table5_losses_ablation(reports):
                     ("full", "true", "true", "false"), ("baseline", "false", "false", "true"),
                     ("no_feature", "true", "false", "true"), ("full", "true", "true", "true")]
     assert sum(r["quoted"] == "true" for r in rows) == 6
+
+
+def test_table5_marks_come_from_the_weights_each_run_recorded(tmp_path, monkeypatch):
+    """What `dvc exp run -S lambda3=0` produces: `full` retrained with λ3 = 0 must be marked L_feature ×
+    (the marks are not the variants' intended roles); a run whose metrics carry no weights gets no mark."""
+    monkeypatch.setenv("F2DEPTH_MLFLOW", "0")
+    weights = {**WEIGHTS, "full": {**WEIGHTS["full"], "lambda3": 0.0},
+               "baseline": {}}  # metrics written before the weights were recorded
+    write_inputs(tmp_path, weights)
+    rows = read_csv(run(tmp_path) / "tables" / "table5_losses.csv")
+    marks = {(r["variant"], r["post_process"]): (r["rigid"], r["feature"])
+             for r in rows if r["quoted"] == "false"}
+    for pp in ("false", "true"):
+        assert marks[("full", pp)] == ("true", "false")
+        assert marks[("no_feature", pp)] == ("true", "false")
+        assert marks[("baseline", pp)] == ("", "")
+    md = (tmp_path / "reports" / "tables" / "table5_losses.md").read_text()
+    full_rows = [line for line in md.splitlines() if line.startswith("| full |")]
+    assert len(full_rows) == 2 and all("| ✓ | × |" in line for line in full_rows)
 
 
 def test_table6_flow_epe_comes_from_the_flow_network_each_variant_used(reports):

@@ -92,13 +92,14 @@ def write_params(root: Path, prepared: Path, mat: Path, splits: Path, flow: Path
     """A params.yaml for the stage, with the variants of params.yaml and tiny training settings."""
     td = {"epochs": 2, "batch_size": 2, "lr": [1e-4, 1e-5, 1e-6], "lr_epochs": [27, 15, 2], "num_points": 50,
           "imagenet_weights": None, "augment": True, "seeds": [0], "workers": 0, "val_max_images": 2,
-          "checkpoint_dir": str(root / "ckpt")}
+          "checkpoint_dir": str(root / "ckpt"), "amp": False}
     td.update(train)
     off = root / "ablation_off.yaml"
     off.write_text("lambda_rigid: 0.0\nlambda3: 0.0\n")
     flow_s = str(flow) if flow else None
     params = {
         "lambda1": 0.001, "lambda2": 0.05, "lambda3": 3.0, "lambda_rigid": 1.0, "device": "cpu",
+        "allow_random_init": True, "flow_pretrain": {"checkpoint": None},
         "data": {"prepared": str(prepared), "keypoints": str(prepared.parent / "keypoints"),
                  "nyu_labeled": str(mat), "nyu_splits": str(splits)},
         "evaluate": {"nyu_gt": "depths", "nyu_crop": "eigen"},

@@ -195,10 +195,19 @@ def read_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
     return ckpt
 
 
-def load_checkpoint(path: str | os.PathLike, map_location: str | torch.device = "cpu") -> DepthModel:
-    """Rebuild a DepthModel from a checkpoint written by ``save_checkpoint`` (strict key check)."""
+def load_checkpoint(path: str | os.PathLike, map_location: str | torch.device = "cpu",
+                    decoder_upsample: str | None = None) -> DepthModel:
+    """Rebuild a DepthModel from a checkpoint written by ``save_checkpoint`` (strict key check).
+
+    ``decoder_upsample`` ("nearest" | "bilinear") rebuilds the depth decoder with that ×2 upsampling
+    instead of the one it was trained with (the layers have no weights): P²Net's NYU evaluation script
+    (``nyuv2_eval_depth.py`` in P²Net's code) builds the decoder with bilinear upsampling while its
+    training uses nearest. None: as trained.
+    """
     ckpt = read_checkpoint(path)
     config = DepthModelConfig.from_dict(ckpt["config"], source=f"{path}: config")
+    if decoder_upsample is not None:
+        config = dataclasses.replace(config, upsample_mode=decoder_upsample)
     model = DepthModel(config)
     try:
         result = model.load_state_dict(ckpt["state_dict"], strict=False)

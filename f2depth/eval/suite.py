@@ -23,6 +23,7 @@ import cv2
 import numpy as np
 import torch
 
+from f2depth.depth.decoder import UPSAMPLE_MODES
 from f2depth.eval.campus import evaluate_campus
 from f2depth.eval.metrics import METRIC_NAMES, PredictDisp
 from f2depth.eval.nyu import evaluate_nyu, resolve_crop
@@ -41,7 +42,9 @@ TIMING_KEYS = ("ms", "ms_pp")
 class SuiteConfig:
     """How every protocol runs. ``height``/``width``: network input size for the test sets (the model's
     training size when None); timing always runs at ``timing_height`` × ``timing_width`` (the paper's
-    288×384). ``datasets``: which of :data:`DATASETS` to run. ``figure_images``: NYU test images (evenly
+    288×384). ``decoder_upsample``: the ×2 upsampling the evaluated depth decoder is rebuilt with (the
+    caller loads the model with it; recorded here with the other settings). ``datasets``: which of
+    :data:`DATASETS` to run. ``figure_images``: NYU test images (evenly
     spaced) whose predictions (PP off) are kept for figures, downsized to ``figure_width``; when it is
     not 0, the middle test frame of every 7-Scenes scene is kept too."""
 
@@ -50,6 +53,7 @@ class SuiteConfig:
     nyu_crop: str = "eigen"
     interpolation: str = "area"
     upsample: str = "nearest"
+    decoder_upsample: str = "bilinear"  # the depth decoder's ×2 upsampling at test time (P²Net's evaluation)
     batch_size: int = 4
     device: str = "cpu"
     datasets: tuple[str, ...] = DATASETS
@@ -68,6 +72,9 @@ class SuiteConfig:
         if (self.height is None) != (self.width is None):
             raise ValueError("give both evaluate.height and evaluate.width, or neither (model's size)")
         resolve_crop(self.nyu_crop)  # fails early on a typo
+        if self.decoder_upsample not in UPSAMPLE_MODES:
+            raise ValueError(f"evaluate.decoder_upsample is {self.decoder_upsample!r}; use one of "
+                             f"{list(UPSAMPLE_MODES)}")
 
 
 class Subset:

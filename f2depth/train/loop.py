@@ -118,7 +118,7 @@ def fit(
         result.resumed_from = int(state["epoch"])
     ddp = wrap_model(model, ctx, sync_bn=config.sync_bn)
     optimizer = torch.optim.Adam(ddp.parameters(), lr=config.schedule.lr(0))
-    scaler = torch.amp.GradScaler("cuda", enabled=step_config.amp)
+    scaler = torch.amp.GradScaler("cuda", enabled=step_config.amp and ctx.device.type == "cuda")
     if state is not None:
         optimizer.load_state_dict(state["optimizer"])
         if state["scaler"] and scaler.is_enabled():

@@ -88,14 +88,15 @@ def train_variant(
     truth = (TrainTruth.from_prepared(prepared, s.diagnostic_tuples)
              if ctx.is_main and s.diagnostic_tuples > 0 else None)
     floor = constant_depth_metrics(validator) if validator is not None else {}
-    step_config = StepConfig(weights=s.weights, min_area=scaled_min_area(h, w), amp=ctx.device.type == "cuda")
+    step_config = StepConfig(weights=s.weights, min_area=scaled_min_area(h, w), amp=s.amp)
     schedule = LRSchedule.scaled(s.lr, s.lr_epochs, s.epochs)
     out_dir = Path(out_dir)
     if ctx.is_main:
         log.info("train_depth[%s]: %d tuples at %dx%d, batch %d, %d epochs (lr phases %s), flow model %s, "
                  "weights %s, %s", s.variant, len(dataset), h, w, s.batch_size, s.epochs,
                  list(schedule.phases), s.flow_model or "none (P²Net baseline)", s.weights,
-                 (f"ImageNet init from {s.imagenet_weights}" if s.imagenet_weights else "random init")
+                 (f"ImageNet init from {s.imagenet_weights}" if s.imagenet_weights
+                  else "random init (no ImageNet weights: allow_random_init)")
                  + (f", initial depth {s.init_depth} m" if s.init_depth is not None else ""))
         if out_dir.exists():
             shutil.rmtree(out_dir)  # stale seeds of an earlier run must not survive
@@ -142,6 +143,7 @@ def train_variant(
         "lambda_sources": s.lambda_sources, "epochs": s.epochs, "batch_size": s.batch_size,
         "lr_phases": list(schedule.phases), "train_tuples": len(dataset),
         "steps_per_epoch": len(dataset) // s.batch_size, "seeds": list(s.seeds), "main_seed": s.seeds[0],
+        "resnet_init": s.imagenet_weights or "random", "init_depth": s.init_depth, "amp": s.amp,
         **{k: v for k, v in per_seed[0].items() if k != "seed"},
         "val_constant_depth": {"abs_rel": floor.get("val_abs_rel"), "a1": floor.get("val_a1")},
         "per_seed": per_seed, "wall_seconds": round(time.perf_counter() - t0, 2),

@@ -49,6 +49,7 @@ class TrainSettings:
     val_crop: str = "eigen"
     val_max_images: int | None = 20
     sync_bn: bool = True
+    amp: bool = False
     device: str = "auto"
     checkpoint_dir: str = "tmp/train_depth"
     diagnostic_tuples: int = 64
@@ -98,7 +99,13 @@ def settings_from_params(params: dict[str, Any], variant: str) -> TrainSettings:
         raise P.ParamsError(f"{path}: variants.{variant} has no flow_model but lambda_rigid="
                             f"{weights.lambda_rigid}, lambda3={weights.lambda3}; read both from "
                             "configs/ablation_off.yaml or give a flow model")
+    # Before any work: the paper's pretrained starts (allow_random_init: false) must exist.
+    starts = P.pretrained_starts(params, ("train_depth.imagenet_weights",)
+                                 + (("flow_pretrain.checkpoint",) if flow_model is not None else ()))
     td = P.get(params, "train_depth")
+    amp = P.get(params, "train_depth.amp")
+    if not isinstance(amp, bool):
+        raise P.ParamsError(f"{path}: train_depth.amp must be true or false, got {amp!r}")
     seeds = td.get("seeds", [0])
     seeds = tuple(int(s) for s in (seeds if isinstance(seeds, list) else [seeds]))
     if not seeds or len(set(seeds)) != len(seeds):
@@ -131,12 +138,13 @@ def settings_from_params(params: dict[str, Any], variant: str) -> TrainSettings:
         augment=bool(P.get(params, "train_depth.augment")),
         seeds=seeds,
         workers=int(td.get("workers", 0)),
-        imagenet_weights=td.get("imagenet_weights"),
+        imagenet_weights=starts["train_depth.imagenet_weights"],
         init_depth=None if init_depth is None else float(init_depth),
         val_gt=str(P.get(params, "evaluate.nyu_gt", "depths")),
         val_crop=str(P.get(params, "evaluate.nyu_crop", "eigen")),
         val_max_images=None if val_max is None else int(val_max),
         sync_bn=bool(td.get("sync_bn", True)),
+        amp=amp,
         device=str(params.get("device", "auto")),
         checkpoint_dir=str(td.get("checkpoint_dir", "tmp/train_depth")),
         diagnostic_tuples=int(td.get("diagnostic_tuples", 64)),

@@ -14,8 +14,9 @@ rigid and feature need a flow teacher; without one (P²Net baseline) they are le
 weight is 0 but that can be computed (e.g. feature for ``no_feature``) is computed without gradients,
 for the logs only. The sum and the NaN/inf guard are ``f2depth.losses.total_loss``.
 
-Mixed precision: with ``amp`` the networks run under ``torch.autocast`` (CUDA float16); the geometry and
-every loss run in float32 with autocast off.
+Mixed precision (``train_depth.amp``, off in the paper's profile: P²Net trains in float32): with ``amp``
+the networks run under ``torch.autocast`` — float16 on CUDA (with a GradScaler in the loop), bfloat16 on
+a CPU —; the geometry and every loss run in float32 with autocast off.
 """
 
 from __future__ import annotations
@@ -56,7 +57,7 @@ class StepConfig:
     min_area: float  # superpixels of more pixels take part in L_spp
     min_depth: float = 0.1
     max_depth: float = 10.0
-    amp: bool = False  # autocast the networks (CUDA only)
+    amp: bool = False  # autocast the networks: float16 on CUDA, bfloat16 on a CPU
 
 
 @dataclass
@@ -74,8 +75,13 @@ def batch_to(batch: dict[str, torch.Tensor], device: torch.device | str) -> dict
     return {k: v.to(device, non_blocking=non_blocking) for k, v in batch.items()}
 
 
+def amp_dtype(device: torch.device | str) -> torch.dtype:
+    """The autocast dtype of mixed precision: float16 on CUDA (with loss scaling), bfloat16 elsewhere."""
+    return torch.float16 if torch.device(device).type == "cuda" else torch.bfloat16
+
+
 def _autocast(device: torch.device, enabled: bool):
-    return torch.autocast(device_type=device.type, dtype=torch.float16) if enabled else nullcontext()
+    return torch.autocast(device_type=device.type, dtype=amp_dtype(device)) if enabled else nullcontext()
 
 
 def network_forward(model: nn.Module, batch: dict[str, torch.Tensor], amp: bool = False) -> NetOutput:
