@@ -7,6 +7,13 @@ process that runs the stages) with one child run per stage (and variant).
 
 Tracking URI: ``$MLFLOW_TRACKING_URI`` or ``sqlite:///mlflow.db`` in the repository root.
 Set ``F2DEPTH_MLFLOW=0`` to disable mirroring (the stage still writes its DVC outputs).
+
+**The mirror never breaks a stage.** A tracking server is probed once, with a ``PROBE_TIMEOUT`` s
+timeout, before a stage opens its run; when it does not answer, or when any MLflow call fails later
+(server gone, database locked, a rejected value), one warning line names the tracking URI and the
+error, and the stage carries on without mirroring. MLflow's own HTTP retries are cut to
+``HTTP_RETRIES`` (its default retries for minutes) unless the user set ``MLFLOW_HTTP_REQUEST_*``.
+Exceptions of the stage's own work are never swallowed.
 """
 
 from __future__ import annotations
@@ -22,8 +29,39 @@ from typing import Any
 
 EXPERIMENT = "f2depth"
 PARENT_KEY_TAG = "f2depth.pipeline_key"
+PROBE_TIMEOUT = 3.0  # seconds to wait for a tracking server's /health before mirroring is given up
+HTTP_RETRIES = "1"
+HTTP_TIMEOUT = "10"
 
 log = logging.getLogger(__name__)
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip()
+    return f"{type(exc).__name__}: {text.splitlines()[0][:200]}" if text else type(exc).__name__
+
+
+def mirror_off(reason: str) -> None:
+    """The one warning line of a mirror that stops (the stage goes on; DVC's files are the truth)."""
+    log.warning("MLflow mirror off (%s): %s; the stage goes on, DVC's metrics files are the record",
+                tracking_uri(), reason)
+
+
+def probe(uri: str, timeout: float | None = None) -> str | None:
+    """None when ``uri`` can be tracked into, else why not. HTTP(S) servers are asked for ``/health``
+    once (``timeout`` s, default :data:`PROBE_TIMEOUT`); local stores (sqlite, file) are checked when the
+    client first touches them."""
+    if not uri.startswith(("http://", "https://")):
+        return None
+    timeout = PROBE_TIMEOUT if timeout is None else timeout
+    import urllib.error
+    import urllib.request
+
+    try:
+        with urllib.request.urlopen(uri.rstrip("/") + "/health", timeout=timeout):
+            return None
+    except (urllib.error.URLError, OSError, ValueError) as exc:
+        return f"no answer from the tracking server within {timeout:g} s ({_first_line(exc)})"
 
 
 def enabled() -> bool:
@@ -81,7 +119,8 @@ def metric_name(name: str) -> str:
 
 
 class StageRun:
-    """A handle on the child run of one stage; every method is a no-op when MLflow is disabled."""
+    """A handle on the child run of one stage; every method is a no-op when MLflow is disabled, and the
+    first MLflow error turns the handle off for good (one warning line, see the module docstring)."""
 
     def __init__(self, client: Any = None, run_id: str | None = None) -> None:
         self._client = client
@@ -91,14 +130,23 @@ class StageRun:
     def active(self) -> bool:
         return self._client is not None
 
+    @contextlib.contextmanager
+    def _guard(self) -> Iterator[None]:
+        try:
+            yield
+        except Exception as exc:  # noqa: BLE001 — any failure of the mirror: stop mirroring, not the stage
+            self._client = None
+            mirror_off(_first_line(exc))
+
     def log_params(self, params: Mapping[str, Any]) -> None:
         if not self.active:
             return
         from mlflow.entities import Param
 
         items = [Param(k, str(v)[:6000]) for k, v in flatten(params).items()]
-        for i in range(0, len(items), 100):
-            self._client.log_batch(self.run_id, params=items[i : i + 100])
+        with self._guard():
+            for i in range(0, len(items), 100):
+                self._client.log_batch(self.run_id, params=items[i : i + 100])
 
     def log_metrics(self, metrics: Mapping[str, Any], step: int | None = None) -> None:
         if not self.active:
@@ -114,22 +162,33 @@ class StageRun:
             if isinstance(v, (int, float)) and not isinstance(v, bool)
         ]
         if items:
-            self._client.log_batch(self.run_id, metrics=items)
+            with self._guard():
+                self._client.log_batch(self.run_id, metrics=items)
 
     def log_artifact(self, path: str | os.PathLike, artifact_path: str | None = None) -> None:
         """Upload a file (into ``artifact_path``) or a folder (into ``artifact_path``, default its name)."""
         if not self.active:
             return
         p = Path(path)
-        if p.is_dir():
-            self._client.log_artifacts(self.run_id, str(p), artifact_path or p.name)
-        elif p.exists():
-            self._client.log_artifact(self.run_id, str(p), artifact_path)
+        with self._guard():
+            if p.is_dir():
+                self._client.log_artifacts(self.run_id, str(p), artifact_path or p.name)
+            elif p.exists():
+                self._client.log_artifact(self.run_id, str(p), artifact_path)
 
     def set_tags(self, tags: Mapping[str, Any]) -> None:
         if self.active:
-            for k, v in tags.items():
-                self._client.set_tag(self.run_id, k, str(v))
+            with self._guard():
+                for k, v in tags.items():
+                    self._client.set_tag(self.run_id, k, str(v))
+
+    def terminate(self, status: str, parent_id: str | None = None) -> None:
+        """End this run with ``status``; also the pipeline's parent run when ``parent_id`` is given."""
+        if self.active:
+            with self._guard():
+                self._client.set_terminated(self.run_id, status=status)
+                if parent_id is not None:
+                    self._client.set_terminated(parent_id, status=status)
 
 
 def _parent_run(client: Any, experiment_id: str, commit: str, exp_name: str) -> str:
@@ -160,31 +219,7 @@ def stage_run(
     parent run FAILED; the last stage of the pipeline (``closes_pipeline``, the ``tables`` stage) marks it
     FINISHED, so the parent runs of completed ``dvc repro`` / ``dvc exp run`` calls do not stay RUNNING.
     """
-    if not enabled():
-        yield StageRun()
-        return
-    from mlflow.tracking import MlflowClient
-
-    logging.getLogger("alembic").setLevel(logging.WARNING)
-    client = MlflowClient(tracking_uri=tracking_uri())
-    exp = client.get_experiment_by_name(EXPERIMENT)
-    experiment_id = exp.experiment_id if exp else client.create_experiment(EXPERIMENT)
-    commit = git_commit(os.environ.get("DVC_ROOT", "."))
-    exp_name = os.environ.get("DVC_EXP_NAME", "workspace")
-    parent_id = _parent_run(client, experiment_id, commit, exp_name)
-    name = os.environ.get("DVC_STAGE") or (f"{stage}@{variant}" if variant else stage)
-    run = client.create_run(
-        experiment_id,
-        run_name=name,
-        tags={
-            "mlflow.parentRunId": parent_id,
-            "git_commit": commit,
-            "dvc_experiment": exp_name,
-            "stage": stage,
-            "variant": variant or "",
-        },
-    )
-    handle = StageRun(client, run.info.run_id)
+    handle, parent_id = _open_run(stage, variant) if enabled() else (StageRun(), None)
     chosen = sections or (stage,)
     logged = {k: v for k, v in params.items() if not isinstance(v, Mapping) and not k.startswith("_")}
     logged.update({s: params[s] for s in chosen if s in params})
@@ -194,9 +229,46 @@ def stage_run(
         yield handle
         status = "FINISHED"
     finally:
-        client.set_terminated(run.info.run_id, status=status)
-        if status == "FAILED" or closes_pipeline:
-            client.set_terminated(parent_id, status=status)
+        handle.terminate(status, parent_id if status == "FAILED" or closes_pipeline else None)
+
+
+def _open_run(stage: str, variant: str | None) -> tuple[StageRun, str | None]:
+    """(the child run of ``stage`` under this pipeline's parent, the parent's id), or an inactive handle
+    and None when the tracking store cannot be reached (one warning line)."""
+    uri = tracking_uri()
+    why = probe(uri)
+    if why is not None:
+        mirror_off(why)
+        return StageRun(), None
+    for key, value in (("MLFLOW_HTTP_REQUEST_MAX_RETRIES", HTTP_RETRIES),
+                       ("MLFLOW_HTTP_REQUEST_TIMEOUT", HTTP_TIMEOUT)):
+        os.environ.setdefault(key, value)
+    from mlflow.tracking import MlflowClient
+
+    logging.getLogger("alembic").setLevel(logging.WARNING)
+    try:
+        client = MlflowClient(tracking_uri=uri)
+        exp = client.get_experiment_by_name(EXPERIMENT)
+        experiment_id = exp.experiment_id if exp else client.create_experiment(EXPERIMENT)
+        commit = git_commit(os.environ.get("DVC_ROOT", "."))
+        exp_name = os.environ.get("DVC_EXP_NAME", "workspace")
+        parent_id = _parent_run(client, experiment_id, commit, exp_name)
+        name = os.environ.get("DVC_STAGE") or (f"{stage}@{variant}" if variant else stage)
+        run = client.create_run(
+            experiment_id,
+            run_name=name,
+            tags={
+                "mlflow.parentRunId": parent_id,
+                "git_commit": commit,
+                "dvc_experiment": exp_name,
+                "stage": stage,
+                "variant": variant or "",
+            },
+        )
+    except Exception as exc:  # noqa: BLE001 — the mirror must never break a stage
+        mirror_off(_first_line(exc))
+        return StageRun(), None
+    return StageRun(client, run.info.run_id), parent_id
 
 
 def mirror_stage(stage: str, params: Mapping[str, Any], metrics: Mapping[str, Any],

@@ -2,10 +2,20 @@
 
 from __future__ import annotations
 
+import json
+import os
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
 import pytest
 from mlflow.tracking import MlflowClient
 
 from f2depth import tracking
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture()
@@ -91,3 +101,73 @@ def test_disabled_is_a_no_op(monkeypatch):
         assert not run.active
         run.log_metrics({"a": 1.0})
         run.log_artifact("does-not-exist")
+
+
+# ---- the mirror never breaks a stage ---------------------------------------------------------------------
+
+def _closed_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_unreachable_server_warns_once_and_the_stage_writes_its_outputs(tmp_path):
+    """The probe from issue #17: a tracking server that does not answer. Before: `prepare` retried for 249 s
+    and exited 1 with a 112-line traceback although its outputs were written. Here the `tables` stage on
+    hand-written evaluation results (tests/test_stage_tables.py) runs with such a server."""
+    import test_stage_tables
+
+    params = test_stage_tables.write_inputs(tmp_path)
+    env = {**os.environ, "F2DEPTH_MLFLOW": "1", "MLFLOW_TRACKING_URI": f"http://127.0.0.1:{_closed_port()}"}
+    t0 = time.perf_counter()
+    res = subprocess.run([sys.executable, str(ROOT / "stages" / "tables.py"), "--params", str(params),
+                          "--metrics", str(tmp_path / "metrics" / "evaluate"), "--eval",
+                          str(tmp_path / "reports" / "eval"), "--train-metrics",
+                          str(tmp_path / "metrics" / "train_depth"), "--out", str(tmp_path / "reports")],
+                         cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    lines = [line for line in res.stderr.strip().splitlines() if "MLflow" in line]
+    assert len(lines) == 1 and lines[0].startswith(f"MLflow mirror off ({env['MLFLOW_TRACKING_URI']}): no "
+                                                   "answer from the tracking server within 3 s"), res.stderr
+    assert "Traceback" not in res.stderr
+    assert (tmp_path / "reports" / "tables" / "table5_losses.md").stat().st_size > 100
+    assert time.perf_counter() - t0 < 120  # not MLflow's minutes of retries (the probe waits at most 3 s)
+
+
+def test_a_silent_server_is_given_up_after_the_probe_timeout(monkeypatch, caplog):
+    """A server that accepts the connection but never answers."""
+    with socket.socket() as server:
+        server.bind(("127.0.0.1", 0))
+        server.listen(1)
+        uri = f"http://127.0.0.1:{server.getsockname()[1]}"
+        monkeypatch.setenv("MLFLOW_TRACKING_URI", uri)
+        monkeypatch.setenv("F2DEPTH_MLFLOW", "1")
+        monkeypatch.setattr(tracking, "PROBE_TIMEOUT", 0.3)
+        with tracking.stage_run("prepare", {"prepare": {"height": 96}}) as run:
+            assert not run.active
+            run.log_metrics({"frames": 1.0})
+    (msg,) = [r.getMessage() for r in caplog.records]
+    assert msg.startswith(f"MLflow mirror off ({uri}): no answer from the tracking server within 0.3 s")
+
+
+def test_a_failing_mlflow_call_turns_the_mirror_off_not_the_stage(mlflow_uri, monkeypatch, caplog):
+    """A store that fails mid-stage (server gone, database locked): one warning, the stage's own work
+    goes on, and an error of the stage itself still propagates."""
+    calls = []
+
+    def broken(self, *args, **kwargs):
+        calls.append(args)
+        raise ConnectionError("connection reset by peer")
+
+    with tracking.stage_run("train_depth", {"train_depth": {"epochs": 2}}) as run:
+        assert run.active
+        monkeypatch.setattr(MlflowClient, "log_batch", broken)
+        run.log_metrics({"loss": 1.0}, step=1)
+        assert not run.active
+        run.log_metrics({"loss": 0.5}, step=2)  # no second call, no second warning
+        run.log_artifact(__file__)
+    assert len(calls) == 1
+    warnings = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+    assert len(warnings) == 1 and "ConnectionError: connection reset by peer" in warnings[0]
+    with pytest.raises(ZeroDivisionError), tracking.stage_run("prepare", {}):
+        _ = 1 / 0
