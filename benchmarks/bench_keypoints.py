@@ -1,7 +1,8 @@
 """Median per-image time of the DSO pixel selector at 640×480, presets ``dso`` and ``p2net``, one thread.
 
 Run: ``python benchmarks/bench_keypoints.py [--repeats N] [--images DIR] [--out file.json]``.
-Uses the reference images in ../shared/data/dso_reference when present, otherwise seeded synthetic images.
+Uses DSO's reference images (``REFERENCE``, the folder the exactness tests read) when present, otherwise
+seeded synthetic images.
 """
 
 from __future__ import annotations

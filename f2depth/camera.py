@@ -90,7 +90,8 @@ def crop_resize_intrinsics(
     """Intrinsics after cropping ``crop`` px from every side of a ``src_hw`` image and resizing to ``dst_hw``.
 
     With ``p2net_cxcy_bug`` the principal point is computed as P²Net's loader does (the *uncropped*
-    cx, cy divided by the *cropped* size, no half-pixel shift; ``research/p2net.md`` §1.3), which
+    cx, cy divided by the *cropped* size, no half-pixel shift; P²Net's ``datasets/nyu_dataset.py``,
+    ``_get_intrinsics``, acknowledged in svip-lab/Indoor-SfMLearner issue #16), which
     misplaces it by ~10 px at 288×384. Default: the geometrically correct values.
     """
     hc, wc = src_hw[0] - 2 * crop, src_hw[1] - 2 * crop

@@ -2,10 +2,10 @@
 
 Usage: python stages/keypoints.py [params.yaml]
 
-Selects on the full-resolution crop of each frame's NYU raw file (keypoints.source: full_resolution,
-P²Net §3.1; reads data.nyu_raw) or on the prepared image (keypoints.source: prepared). Writes
-<data.keypoints>/train.npz (docs/formats.md), metrics/keypoints.json and overlay PNGs of a few frames into
-keypoints.overlay_dir. Bad data or parameters end the stage with one line naming the file and the fix.
+Selects on the full-resolution crop of each frame's NYU raw file (keypoints.source: full_resolution, as
+P²Net's datasets/nyu_dataset.py; reads data.nyu_raw) or on the prepared image (keypoints.source: prepared).
+Writes <data.keypoints>/train.npz (docs/formats.md), metrics/keypoints.json and overlay PNGs of a few frames
+into keypoints.overlay_dir. Bad data or parameters end the stage with one line naming the file and the fix.
 """
 
 from __future__ import annotations

@@ -184,7 +184,8 @@ def test_superpixels_on_flat_blocks():
 
 
 def test_full_resolution_crop_is_the_image_prepare_resizes():
-    """undistort_crop (the keypoints' input, P²Net §3.1) and prepare_image share one pipeline."""
+    """undistort_crop (the keypoints' input, as in P²Net's datasets/nyu_dataset.py) and prepare_image
+    share one pipeline."""
     raw = fakes.smooth_image(NYU_SIZE_HW, seed=3, cells=40)
     full = undistort_crop(raw, 16)
     assert full.shape == (448, 608, 3) and full.dtype == np.uint8

@@ -1,4 +1,4 @@
-"""Tests for f2depth.eval.published: the SPEC 4.6 anchors and the tables' internal consistency."""
+"""Tests for f2depth.eval.published: the paper's headline numbers and the tables' internal consistency."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Keypoints selected on the full-resolution crop of the raw frame (P²Net §3.1), not on the prepared image.
+"""Keypoints selected on the full-resolution crop of the raw frame (as P²Net does), not on the prepared image.
 
 A tiny NYU raw set is prepared with the real ``prepare``; the keypoints stage must give exactly the points
 of P²Net's recipe computed here independently: ``cv2.undistort`` with the NYU calibration, the crop,

@@ -1,4 +1,4 @@
-"""Pyramid, gradients and block thresholds against direct transcriptions of research/dso.md §1-2."""
+"""Pyramid, gradients and block thresholds against direct transcriptions of DSO's makeImages and makeHists."""
 
 from __future__ import annotations
 

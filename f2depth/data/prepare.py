@@ -109,7 +109,8 @@ def crop_and_resize(image: np.ndarray, crop: int, hw: tuple[int, int], nearest: 
 
 def undistort_crop(raw_rgb: np.ndarray, crop: int) -> np.ndarray:
     """Distorted NYU raw frame (480, 640, 3) → undistorted RGB uint8 with ``crop`` px cut from every side,
-    at full resolution ((448, 608, 3) for crop 16): the image P²Net selects its keypoints on (P²Net §3.1)."""
+    at full resolution ((448, 608, 3) for crop 16): the image P²Net selects its keypoints on (its
+    ``datasets/nyu_dataset.py``)."""
     return crop_border(undistort_image(raw_rgb, NYU_RGB_K, NYU_RGB_DIST), crop)
 
 

@@ -170,7 +170,7 @@ def to_tensor(rgb: np.ndarray, size: tuple[int, int] | None = None) -> torch.Ten
 class SintelPairs(torch.utils.data.Dataset):
     """Unsupervised training pairs: ``(img1, img2)`` float ``(3,h,w)`` in [0,1] resized to ``size``.
 
-    With ``augment`` (ARFlow's co-transforms, research/arflow.md §5.1): horizontal flip with p = 0.5 and
+    With ``augment`` (ARFlow's ``transforms/co_transforms.py``): horizontal flip with p = 0.5 and
     frame-order swap with p = 0.5, drawn from ``torch``'s global generator (seed it for repeatability).
     """
 

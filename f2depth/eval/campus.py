@@ -1,12 +1,12 @@
-"""Campus Indoor protocol: sparse laser-measured points (SPEC 4.5; paper tab:tab3 and tab:tab4).
+"""Campus Indoor protocol: sparse laser-measured points (the paper §4.1, §4.2.3; Tables 3 and 4).
 
 Per image: the full image resized to the network size (288×384; a portrait image uses 384×288 when
 ``keep_orientation``, so it is not squashed), predict (optionally with flip post-processing, blended at
 the network resolution), sample the disparity at the points' pixel positions with bilinear
 interpolation, depth = 1/disp, valid points gt > 0 (and ≤ ``max_gt_depth`` if given), median-scale over
 the points, clip to [0.1, 10] m, eight metrics over the points. Scene row = mean over its images;
-``average`` = mean over the scene rows (the paper's tab:tab3 "average results of 18 scenes" equals the
-mean of its tab:tab4 scene rows). Also reported: the mean over images and the metrics pooled over all
+``average`` = mean over the scene rows (the paper's Table 3 "average results of 18 scenes" equals the
+mean of its Table 4 scene rows). Also reported: the mean over images and the metrics pooled over all
 points (after each image's own scaling), since ~15 points per image make these differ.
 
 Sampling: a point (u, v) of a W×H image (pixel centres at integer coordinates) is read from the

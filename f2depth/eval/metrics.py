@@ -1,8 +1,9 @@
 """Depth metrics, median scaling and Monodepth's flip post-processing.
 
-Every protocol (NYU, 7-Scenes, Campus) uses the same per-image recipe (research/evalpeers.md A1.5-A1.6,
-research/p2net.md §8.1): keep the valid pixels, scale the prediction by the ratio of medians, clip it to
-``[min_depth, max_depth]`` and compute the eight metrics on those pixels. Dataset numbers are the mean
+Every protocol (NYU, 7-Scenes, Campus) uses the same per-image recipe (P²Net's
+``evaluation/nyuv2_eval_depth.py``; Monodepth2's ``evaluate_depth.py``, ``compute_errors``): keep the
+valid pixels, scale the prediction by the ratio of medians, clip it to ``[min_depth, max_depth]`` and
+compute the eight metrics on those pixels. Dataset numbers are the mean
 of the per-image numbers (RMS is the mean of per-image RMS, not a pooled RMS).
 
 Metric names are stable and used as keys everywhere (metrics JSON, tables, MLflow): see

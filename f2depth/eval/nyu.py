@@ -1,4 +1,4 @@
-"""NYU Depth V2 test protocol, as P²Net's ``nyuv2_eval_depth.py`` does it (research/p2net.md §8.1).
+"""NYU Depth V2 test protocol, as P²Net's ``evaluation/nyuv2_eval_depth.py`` does it.
 
 Per image: crop rgb and ground truth to the Eigen crop (rows 44:471, cols 40:601, 427×561), resize
 the rgb crop to the network size (288×384; INTER_AREA by default like our training images, PIL LANCZOS
@@ -36,7 +36,7 @@ from f2depth.eval.metrics import (
 
 CROPS: dict[str, tuple[int, int, int, int] | None] = {
     "eigen": (44, 471, 40, 601),  # NYU toolbox mask(45:471, 41:601), 1-based inclusive → 427×561
-    "eigen_sc": (45, 471, 41, 601),  # SC-Depth / ZoeDepth convention, 426×560 (evalpeers A1.3)
+    "eigen_sc": (45, 471, 41, 601),  # SC-Depth's eval_depth.py / ZoeDepth's compute_metrics, 426×560
     "none": None,
 }
 """Crops as (top, bottom, left, right), 0-based, end exclusive."""

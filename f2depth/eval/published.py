@@ -1,7 +1,8 @@
 """The F²Depth paper's published numbers, as data (quoted beside our results in the tables).
 
-Copied from ``spec/f2depth_paper.tex`` (F²Depth, arXiv 2403.18443); every row carries the LaTeX label of
-its table in ``source``, and ``quoted: True`` so the table renderers mark it. "-" in the paper is None.
+Copied from the paper's LaTeX source (F²Depth, Guo et al., arXiv 2403.18443); every row carries the LaTeX
+label of its table in ``source`` (``tab:tab1`` = Table 1, ``tab:tab7scenes`` = Table 2, ``tab:tab3`` …
+``tab:tab6`` = Tables 3–6), and ``quoted: True`` so the table renderers mark it. "-" in the paper is None.
 Method names use Unicode (P²Net, F²Depth). All NYU rows are on the 654 official test images with
 per-image median scaling. 7-Scenes rows are with post-processing (the table's header says "+ PP");
 Campus rows are without.
@@ -13,7 +14,7 @@ from __future__ import annotations
 
 from typing import Any
 
-PAPER = "F²Depth (arXiv 2403.18443), spec/f2depth_paper.tex"
+PAPER = "F²Depth (Guo et al., arXiv 2403.18443)"
 
 _NYU_KEYS = ("abs_rel", "rmse", "log10", "a1", "a2", "a3")
 _7S_KEYS = ("abs_rel", "rmse", "a1", "a2", "a3")

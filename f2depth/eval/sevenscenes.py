@@ -1,4 +1,4 @@
-"""7-Scenes zero-shot protocol (SPEC 4.5; research/evalpeers.md A2).
+"""7-Scenes zero-shot protocol (the paper §4.1 and §4.2.2; Shotton et al., CVPR 2013).
 
 Per frame: the full 480×640 rgb resized to the network size (288×384), predict (optionally with flip
 post-processing), upsample the disparity to the ground-truth size (nearest by default, as P²Net's
@@ -8,7 +8,7 @@ ScanNet evaluation), depth = 1/disp, valid where ``min_gt_depth < gt ≤ max_gt_
 Rows: one per scene (mean over its frames), then two summary rows:
 - ``average``: the **unweighted mean of the scene rows** (each scene counts once);
 - ``frame_weighted``: the mean over all frames (= scene rows weighted by their frame counts).
-The paper's "Average" row (tab:tab7scenes) is reproduced by the *frame-weighted* mean of its scene rows
+The paper's "Average" row (Table 2) is reproduced by the *frame-weighted* mean of its scene rows
 with the official test counts (:data:`TEST_FRAMES`), not by the unweighted one: compare with
 ``frame_weighted`` (see tests/test_eval_published.py).
 
@@ -45,7 +45,7 @@ TEST_FRAMES: dict[str, int] = {
     "chess": 2000, "fire": 2000, "heads": 1000, "office": 4000, "pumpkin": 2000, "redkitchen": 5000,
     "stairs": 1000,
 }  # fmt: skip
-"""Frames in the official test sequences (TestSplit.txt) per scene; 17,000 in all (evalpeers.md A2.1)."""
+"""Frames in the official test sequences (TestSplit.txt) per scene; 17,000 in all (the paper §4.1)."""
 
 INVALID_MM = 65535
 AVERAGE_ROW = "Average"

@@ -6,7 +6,7 @@ Not timed: image decoding, resizing, host→device copies, upsampling to the gro
 ``time.perf_counter`` around each call, with ``torch.cuda.synchronize`` before and after on CUDA (and
 ``torch.mps.synchronize`` on MPS) so asynchronous kernels are counted. The reported figure is the
 median over ``repeats`` runs after ``warmup`` untimed runs. The paper reports 9.4 ms (13.5 ms with PP)
-on an RTX 3090 (SPEC 4.6); on a CPU expect far more, and set the thread count before timing.
+on an RTX 3090 (the paper §4.2.1); on a CPU expect far more, and set the thread count before timing.
 """
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
 """Optical flow: ARFlow's PWC-Lite, its cost volume, census, warp, unsupervised loss, AR transforms,
-checkpoint import and evaluation (research/arflow.md)."""
+checkpoint import and evaluation (ARFlow, Liu et al., CVPR 2020; its code github.com/lliuz/ARFlow)."""
 
 from f2depth.flow.census import census_distance
 from f2depth.flow.checkpoint import (

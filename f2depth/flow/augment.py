@@ -1,7 +1,7 @@
-"""Training augmentation of frame pairs as F²Depth / P²Net do it (research/p2net.md §2): with probability
-0.5 a colour jitter (brightness, contrast, saturation in [0.8, 1.2], hue in [−0.1, 0.1], applied in a
-random order, one draw shared by both frames of a sample), with probability 0.5 a horizontal flip of both
-frames and of the target's keypoints.
+"""Training augmentation of frame pairs as F²Depth / P²Net do it (P²Net's code,
+``datasets/nyu_dataset.py``): with probability 0.5 a colour jitter (brightness, contrast, saturation in
+[0.8, 1.2], hue in [−0.1, 0.1], applied in a random order, one draw shared by both frames of a sample),
+with probability 0.5 a horizontal flip of both frames and of the target's keypoints.
 
 As in P²Net, the jittered images are only the *network input*; the loss compares the un-jittered
 (but flipped) frames. A flip changes the sign of the horizontal flow component: flipping a pair and its

@@ -1,4 +1,4 @@
-"""ARFlow's ternary census distance (research/arflow.md §4; UnFlow's transform with a 3×3 patch).
+"""ARFlow's ternary census distance (ARFlow's code, ``losses/loss_blocks.py``; UnFlow's transform, 3×3 patch).
 
 For a grey image ``I = 255·(0.2989 R + 0.5870 G + 0.1140 B)`` and the 9 offsets ``o`` of a 3×3 patch
 (centre included, zero padding outside the image)::

@@ -2,9 +2,10 @@
 
 Everything goes through ``torch.load(..., weights_only=True)``: no pickled code is ever executed.
 
-ARFlow files (research/arflow.md §2.2) are ``torch.save({'epoch', 'state_dict'})`` dicts in the legacy
-(pre-1.6) or zip serialisation; ``'model_state_dict'`` or a bare state dict are accepted too, and a
-``module.`` prefix (DataParallel) is stripped. Loading is strict: missing, unexpected and mis-shaped keys
+ARFlow files (ARFlow's code: ``trainer/base_trainer.py``, ``utils/torch_utils.py``) are
+``torch.save({'epoch', 'state_dict'})`` dicts in the legacy (pre-1.6) or zip serialisation;
+``'model_state_dict'`` or a bare state dict are accepted too, and a ``module.`` prefix (DataParallel) is
+stripped. Loading is strict: missing, unexpected and mis-shaped keys
 are all listed in one :class:`CheckpointError`.
 
 Ours: ``{"format": "f2depth.pwclite", "version": 1, "state_dict", "config", "params"}`` (docs/formats.md).

@@ -1,7 +1,7 @@
 """PWC-Lite's cost volume in plain PyTorch (CPU and CUDA), with a hand-written backward.
 
-Semantics (ARFlow / FlowNet2 ``Correlation(pad 4, kernel 1, max_displacement 4, strides 1)``,
-research/arflow.md §1.3)::
+Semantics (ARFlow / FlowNet2 ``Correlation(pad 4, kernel 1, max_displacement 4, strides 1)``; ARFlow's
+code, ``models/pwclite.py`` and ``models/correlation_native.py``)::
 
     out[b, (dy+4)*9 + (dx+4), y, x] = mean_c f1[b, c, y, x] * f2[b, c, y+dy, x+dx],   dy, dx ∈ {-4..4}
 
@@ -153,4 +153,11 @@ def correlation(f1: torch.Tensor, f2: torch.Tensor, max_displacement: int = MAX_
                          f"and {tuple(f2.shape)}")
     if block < 2 * max_displacement:
         raise ValueError(f"correlation: block {block} must be at least 2·max_displacement")
+    if f1.dtype != f2.dtype:
+        # under autocast the warped f2 can come back in float32 (CPU grid_sample) next to a bfloat16 f1:
+        # compute in autocast's dtype, as a matrix product would, else in the wider of the two
+        dev = f1.device.type
+        dtype = (torch.get_autocast_dtype(dev) if torch.is_autocast_enabled(dev)
+                 else torch.promote_types(f1.dtype, f2.dtype))
+        f1, f2 = f1.to(dtype), f2.to(dtype)
     return _Correlation.apply(f1, f2, max_displacement, block).permute(0, 3, 1, 2)

@@ -1,4 +1,4 @@
-"""ARFlow's unsupervised flow loss (research/arflow.md §3–4), both directions, multi-scale.
+"""ARFlow's unsupervised flow loss (ARFlow's code, ``losses/flow_loss.py``), both directions, multi-scale.
 
 Per output level i (finest first) with weight ``w_scales[i] > 0``: images area-resized to the level,
 frame 2 warped to frame 1 by the forward flow (and frame 1 to frame 2 by the backward flow), a

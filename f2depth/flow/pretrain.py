@@ -1,4 +1,5 @@
-"""Unsupervised pretraining of PWC-Lite with ARFlow's schedule, resumable (research/arflow.md §5).
+"""Unsupervised pretraining of PWC-Lite with ARFlow's schedule, resumable (ARFlow's code:
+``configs/sintel_raw.json``, ``configs/sintel_ft.json``, ``trainer/base_trainer.py``).
 
 Schedule: ``raw_epochs`` epochs with the ``sintel_raw`` loss (0.15·L1 + 0.85·SSIM, range-map occlusion),
 then ``census_epochs`` with the ``sintel_ft`` loss (census, forward–backward occlusion) — ARFlow's
@@ -6,7 +7,7 @@ then ``census_epochs`` with the ``sintel_ft`` loss (census, forward–backward o
 biases; batches of frame pairs resized to the training size, horizontal flip and frame-order swap.
 
 Initialisation (``init``): ``msra`` (default) draws every convolution from Kaiming-normal (fan-in) with
-zero biases — the body of ARFlow's ``init_weights``, which never runs there (research/arflow.md §1.9);
+zero biases — the body of ARFlow's ``init_weights``, which never runs there (ARFlow's ``models/pwclite.py``);
 ``pytorch`` keeps PyTorch's default, i.e. what ARFlow really trains from. With the default the pyramid
 features are so small that the cost volume is ~1e-3 of the decoder's other inputs and the output
 hardly depends on the images for the first hundreds of steps; with MSRA the correlation peaks are

@@ -1,4 +1,4 @@
-"""PWC-Lite, the flow network of ARFlow (Liu et al., CVPR 2020), re-implemented from research/arflow.md §1–2.
+"""PWC-Lite, the flow network of ARFlow (Liu et al., CVPR 2020; ARFlow's ``models/pwclite.py``).
 
 Module and parameter names, shapes and registration order equal ARFlow's (2-frame model,
 ``reduce_dense=True``, ``upsample=True``), so ARFlow ``state_dict``s load by name *and* by position
@@ -101,8 +101,9 @@ def msra_init(model: nn.Module, generator: torch.Generator | None = None) -> nn.
 
     This is what ARFlow's ``init_weights`` sets out to do; because that method tests the (name, module)
     tuples of ``named_modules()`` against ``nn.Conv2d`` it never matches, so ARFlow actually trains from
-    PyTorch's default initialisation (research/arflow.md §1.9). Default-initialised features are small and
-    the cost volume (a mean of products) is then ~100× smaller than the decoder's other inputs.
+    PyTorch's default initialisation (ARFlow's code, ``models/pwclite.py``). Default-initialised
+    features are small and the cost volume (a mean of products) is then ~100× smaller than the decoder's
+    other inputs.
     """
     with torch.no_grad():
         for module in model.modules():

@@ -1,5 +1,6 @@
-"""ARFlow's AR self-supervision (research/arflow.md §3.6): appearance and spatial transforms of an image
-pair, the matching transform of a teacher flow and its non-occluded mask, and the AR loss.
+"""ARFlow's AR self-supervision (ARFlow's code, ``trainer/sintel_trainer_ar.py``,
+``transforms/ar_transforms/``): appearance and spatial transforms of an image pair, the matching
+transform of a teacher flow and its non-occluded mask, and the AR loss.
 
 The first pass of the network on the original pair gives ``flow_ori`` and ``noc_ori`` (detached); the pair
 is then transformed, the network runs again on it, and its finest forward flow is pulled towards the
@@ -52,7 +53,7 @@ class SpatialConfig:
     translate: tuple[float, float] = (-0.1, 0.1)       # in [-1, 1] image coordinates
     rel_zoom: tuple[float, float] = (0.985, 1.015)
     rel_squeeze: tuple[float, float] = (1.0, 1.0)
-    rel_rotate: tuple[float, float] = (-0.015, -0.015)  # ARFlow quirk: always rotate[2] (research §3.6)
+    rel_rotate: tuple[float, float] = (-0.015, -0.015)  # ARFlow quirk: always rotate[2] (sp_transfroms.py)
     rel_translate: tuple[float, float] = (-0.0075, 0.0075)
     hflip: bool = True
     vflip: bool = True

@@ -1,4 +1,4 @@
-"""DSO's pixel selector (PixelSelector2), re-implemented from research/dso.md, and keypoint files.
+"""DSO's pixel selector (Engel et al., TPAMI 2018; DSO's ``PixelSelector2.cpp``) and keypoint files.
 
 ``select_pixels(gray, preset="dso", **overrides)`` and ``select_raw(gray, pot, direction)`` select;
 ``KeypointFile(path).tensor(frame_index)`` and ``fill_up(points, count, H, W, generator)`` serve the losses.

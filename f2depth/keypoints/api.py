@@ -52,7 +52,7 @@ class KeypointSelector:
 
         They are selected at the preset's working size (or at (H, W)) and mapped to ``out_hw`` (default:
         (H, W)) with P²Net's integer arithmetic ``x·W_out // W_work``, ``y·H_out // H_work``: the
-        keypoints of a full-resolution frame at the training size (P²Net §3.1).
+        keypoints of a full-resolution frame at the training size (P²Net's ``datasets/nyu_dataset.py``).
         """
         gray = _check_gray(gray)
         cfg = self.preset

@@ -2,11 +2,11 @@
 
 ``source`` is the image the selector sees:
 
-* ``full_resolution`` (default, P²Net §3.1): the frame's NYU raw file (``data.nyu_raw`` / frames.csv
-  ``raw_file``), undistorted and cropped by prepare's own functions with camera.json's ``crop`` — the
-  448×608 full-resolution crop —, converted to grey. The preset's working size (P²Net: 640×480,
-  bilinear) applies to it and the points are mapped to the training size with P²Net's integer
-  arithmetic. Each raw frame is also re-prepared and compared with the prepared image, so a
+* ``full_resolution`` (default, as P²Net's ``datasets/nyu_dataset.py``): the frame's NYU raw file
+  (``data.nyu_raw`` / frames.csv ``raw_file``), undistorted and cropped by prepare's own functions with
+  camera.json's ``crop`` — the 448×608 full-resolution crop —, converted to grey. The preset's working
+  size (P²Net: 640×480, bilinear) applies to it and the points are mapped to the training size with
+  P²Net's integer arithmetic. Each raw frame is also re-prepared and compared with the prepared image, so a
   ``data.nyu_raw`` that is not the data prepare read fails loudly instead of giving misplaced points.
 * ``prepared``: the prepared image at the training size (the behaviour before the full-resolution
   source; upsampling lowers the gradients, so a different set of pixels passes DSO's thresholds).
@@ -55,7 +55,8 @@ _RAW_FIX = ("data.nyu_raw must be the NYU raw folder data.prepared was made from
 def full_resolution_gray(raw_path: str | os.PathLike, crop: int) -> tuple[np.ndarray, np.ndarray]:
     """A raw NYU frame → (grey uint8 (480−2·crop, 640−2·crop) of the undistorted crop, its RGB).
 
-    The grey conversion is P²Net's ``cv2.cvtColor(RGB2GRAY)`` on the full-resolution crop (P²Net §3.1).
+    The grey conversion is P²Net's ``cv2.cvtColor(RGB2GRAY)`` on the full-resolution crop (P²Net's
+    ``datasets/nyu_dataset.py``).
     """
     path = Path(raw_path)
     if not path.is_file():

@@ -1,4 +1,4 @@
-"""DSO's ``makeMaps``: adapt the cell size to a density target, re-select, thin (research/dso.md §4).
+"""DSO's ``makeMaps``: adapt the cell size to a density target, re-select, thin (``PixelSelector2.cpp``).
 
 Float32 where DSO computes in float; comparisons with DSO's double literals are done in double.
 """

@@ -45,8 +45,9 @@ class Preset:
 PRESETS: dict[str, Preset] = {
     # FullSystem::makeNewTraces: density 1500 per keyframe, one re-selection, direction test on.
     "dso": Preset("dso"),
-    # P²Net (research/p2net.md §3.1): grey 640×480, makeMaps(2000, recursions 3), no direction test,
-    # at most 2500 points, rescaled to the training size with integer arithmetic; duplicates kept.
+    # P²Net (its datasets/nyu_dataset.py, extract_svo_point.py, main2.cpp): grey 640×480,
+    # makeMaps(2000, recursions 3), no direction test, at most 2500 points, rescaled to the training
+    # size with integer arithmetic; duplicates kept.
     "p2net": Preset(
         "p2net", density=2000, recursions=3, direction=False, work_size=(480, 640), max_points=2500
     ),

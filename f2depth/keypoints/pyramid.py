@@ -1,9 +1,9 @@
-"""DSO's image pyramid and gradients (``FrameHessian::makeImages``, research/dso.md §1), in float32.
+"""DSO's image pyramid and gradients (DSO's ``FrameHessian::makeImages``, ``HessianBlocks.cpp``), in float32.
 
 Level ``l`` is ``(w >> l) × (h >> l)``, a 2×2 box average of level ``l−1`` (odd last row/column
 dropped). Gradients are central differences halved, over the flat index range ``[w, w·(h−1))``:
 rows 1..h−2, every column, with DSO's wrap-around at row ends. Rows 0 and h−1 are never written by
-DSO; here they are 0 (what the reference build reads, §5.3).
+DSO (uninitialised memory there); here they are 0, what the DSO reference build the tests use reads.
 """
 
 from __future__ import annotations

@@ -1,8 +1,9 @@
 """DSO's random byte pattern: glibc ``srand(3141592)`` then ``rand() & 0xFF`` per entry.
 
-glibc's ``rand()`` (TYPE_3) is an additive lagged-Fibonacci generator seeded by a Lehmer
-generator (research/dso.md §5.1). It is reimplemented here so that the pattern, and with it the
-selector's output, is the same on every platform.
+glibc's ``rand()`` (TYPE_3, glibc's ``stdlib/random_r.c``) is an additive lagged-Fibonacci generator
+seeded by a Lehmer generator; DSO seeds it in the ``PixelSelector`` constructor (``PixelSelector2.cpp``).
+It is reimplemented here so that the pattern, and with it the selector's output, is the same on every
+platform.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""DSO's hierarchical grid selection (``PixelSelector::select``, research/dso.md §3), vectorised.
+"""DSO's hierarchical grid selection (``PixelSelector::select``, DSO's ``PixelSelector2.cpp``), vectorised.
 
 Cells of size d = pot, 2d and 4d start at (0, 0) and are visited 4d-cell by 4d-cell in raster order,
 then 2d sub-cells, then d sub-cells, then pixels, each in raster order. We permute the pixels into that
@@ -26,7 +26,7 @@ from f2depth.keypoints.pyramid import make_images
 from f2depth.keypoints.random_pattern import random_pattern
 from f2depth.keypoints.thresholds import BLOCK, make_hists, pixel_thresholds
 
-# DSO's 16 directions, as its float literals (research/dso.md §3.3).
+# DSO's 16 directions, as its float literals (PixelSelector2.cpp).
 DIRECTIONS = np.array(
     [
         (0.0, 1.0000), (0.3827, 0.9239), (0.1951, 0.9808), (0.9239, 0.3827),

@@ -1,10 +1,10 @@
-"""DSO's adaptive block thresholds (``makeHists``, research/dso.md §2), in float32.
+"""DSO's adaptive block thresholds (``makeHists`` in DSO's ``PixelSelector2.cpp``), in float32.
 
 Per 32×32 block: the histogram of ``g = min((int)sqrt(|∇I|²), 48)`` over pixels with
 ``1 ≤ x ≤ w−2`` and ``1 ≤ y ≤ h−2``, its upper median (DSO's ``computeHistQuantil(hist, 0.5)``)
 plus ``hist_add`` (7); then the square of the mean over the 3×3 neighbouring blocks.
 
-Sizes that are not multiples of 32 (our choice, documented; DSO itself aliases blocks there, §5.3b):
+Sizes that are not multiples of 32 (our choice, documented; DSO itself aliases blocks there):
 the block grid is ``ceil(h/32) × ceil(w/32)`` and the right/bottom blocks are partial, holding the
 pixels they cover. A partial block that counts no pixel (a strip one pixel wide, all in the excluded
 border) takes no part in the smoothing and gets the mean of its non-empty neighbours. For sizes that are

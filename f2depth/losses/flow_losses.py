@@ -1,8 +1,8 @@
 """F²Depth's flow losses: optical-flow consistency L_rigid and feature-map synthesis L_feature.
 
-Conventions (SPEC §4.4): flows go from the target (frame 0) to the source (frame +1), ``(B,2,H,W)``
-pixels, x first. The flow network is frozen: its flow and features are detached here, so gradients
-reach depth and pose only through the rigid flow.
+Conventions (the paper §3.2–3.3; the reading is in docs/method.md §6): flows go from the target
+(frame 0) to the source (frame +1), ``(B,2,H,W)`` pixels, x first. The flow network is frozen: its flow
+and features are detached here, so gradients reach depth and pose only through the rigid flow.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""P²Net's patch-based multi-view photometric loss L_ph (research/p2net.md §3).
+"""P²Net's patch-based multi-view photometric loss L_ph (P²Net's ``trainer_geo.py``, ``layers.py``).
 
 For every target point p (DSO keypoints filled up with uniform random points) a fronto-parallel patch of
 9 samples at offsets {−2, 0, 2}² shares the centre's depth D(p): ``X_k = D(p)·K⁻¹·[u+dx, v+dy, 1]ᵀ``.

@@ -1,4 +1,4 @@
-"""P²Net's superpixel planar consistency loss L_spp (research/p2net.md §5.2), vectorised.
+"""P²Net's superpixel planar consistency loss L_spp (P²Net's ``trainer_geo.py``), vectorised.
 
 Per superpixel m of the target (Felzenszwalb labels) the predicted depth is back-projected,
 ``X_i = D_i·K⁻¹·p_i``, and the plane ``nᵀX = 1`` is fitted by ridge least squares in closed form:

@@ -1,4 +1,5 @@
-"""P²Net's edge-aware first-order smoothness L_sm on mean-normalised disparity (research/p2net.md §4)."""
+"""P²Net's edge-aware first-order smoothness L_sm on mean-normalised disparity (P²Net's
+``trainer_geo.py`` and ``layers.py``, ``get_smooth_loss``)."""
 
 from __future__ import annotations
 

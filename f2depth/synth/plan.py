@@ -14,7 +14,7 @@ import numpy as np
 from f2depth.synth.config import SynthConfig
 from f2depth.synth.layout import CAMPUS_KINDS, NYU_KINDS, SEVENSCENES_NAMES
 
-#: official 7-Scenes test sequences (SPEC section 3)
+#: official 7-Scenes test sequences (each scene's TestSplit.txt, Shotton et al., CVPR 2013)
 SEVENSCENES_TEST = {
     "chess": (3, 5),
     "fire": (3, 4),
