@@ -2,17 +2,32 @@
 
 Exit codes: 0 success; 1 bad input (the one line on stderr names the file and the problem); 2 wrong
 command-line usage; 3 an optional dependency is missing; 130 interrupted (files already written are
-complete: every output is written atomically).
+complete: every output is written atomically). Every error is one line on stderr; warnings (e.g. a video
+that decodes to fewer frames than its container announces) are lines starting ``f2depth <command>:
+warning:``. Numbers must be finite, devices available, export sizes and opsets within the bounds of
+``f2depth.inference.limits``.
 """
 
 from __future__ import annotations
 
 import argparse
+import math
+import re
 import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+from f2depth.inference.limits import (
+    DEFAULT_OPSET,
+    MAX_OPSET,
+    MAX_SIDE,
+    MIN_OPSET,
+    MIN_SIDE,
+    check_export_size,
+)
+
 EXIT_INPUT, EXIT_USAGE, EXIT_MISSING, EXIT_INTERRUPTED = 1, 2, 3, 130
+_DEVICE = re.compile(r"auto|cpu|mps|cuda(:\d+)?")
 
 RELATIVE_NOTE = """\
 Depth is RELATIVE: the networks are self-supervised (trained from video without depth), so a prediction
@@ -54,25 +69,80 @@ class UsageError(Exception):
     """Inconsistent options that argparse cannot express."""
 
 
+class OneLineParser(argparse.ArgumentParser):
+    """argparse with a one-line usage error (the full usage is one ``--help`` away)."""
+
+    def error(self, message: str):
+        self.exit(EXIT_USAGE, f"{self.prog}: error: {message} (see `{self.prog} --help`)\n")
+
+
+def _integer(text: str) -> int:
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+
+
+def _finite(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"must be a finite number, got {text}")
+    return value
+
+
 def _positive_int(text: str) -> int:
-    value = int(text)
+    value = _integer(text)
     if value < 1:
         raise argparse.ArgumentTypeError(f"must be ≥ 1, got {value}")
     return value
 
 
 def _positive_float(text: str) -> float:
-    value = float(text)
+    value = _finite(text)
     if not value > 0:
         raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
     return value
 
 
-def _multiple_of_32(text: str) -> int:
-    value = int(text)
-    if value <= 0 or value % 32:
-        raise argparse.ArgumentTypeError(f"must be a positive multiple of 32, got {value}")
+def _export_side(text: str) -> int:
+    value = _integer(text)
+    if value % 32 or not MIN_SIDE <= value <= MAX_SIDE:
+        raise argparse.ArgumentTypeError(f"must be a multiple of 32 in {MIN_SIDE}..{MAX_SIDE}, got {value}")
     return value
+
+
+def _opset(text: str) -> int:
+    value = _integer(text)
+    if not MIN_OPSET <= value <= MAX_OPSET:
+        raise argparse.ArgumentTypeError(f"ONNX opset must be in {MIN_OPSET}..{MAX_OPSET} (the opsets "
+                                         f"torch's exporter writes for this network), got {value}")
+    return value
+
+
+def _device(text: str) -> str:
+    """auto | cpu | cuda | cuda:N | mps, checked against what this machine's torch offers."""
+    if not _DEVICE.fullmatch(text):
+        raise argparse.ArgumentTypeError(f"unknown device {text!r}: use auto, cpu, cuda, cuda:N or mps")
+    if text in ("auto", "cpu"):
+        return text
+    import torch
+
+    if text == "mps":
+        if not torch.backends.mps.is_available():
+            raise argparse.ArgumentTypeError("mps (Apple GPU) is not available here; use cpu or auto")
+        return text
+    if not torch.cuda.is_available():
+        raise argparse.ArgumentTypeError(f"{text}: CUDA is not available (torch {torch.__version__} sees no "
+                                         "GPU); use cpu or auto")
+    count = torch.cuda.device_count()
+    index = int(text.partition(":")[2] or 0)
+    if index >= count:
+        raise argparse.ArgumentTypeError(f"{text}: this machine has {count} CUDA device(s), "
+                                         f"cuda:0..cuda:{count - 1}")
+    return text
 
 
 def _add_network(p: argparse.ArgumentParser, required: bool = True) -> None:
@@ -84,12 +154,13 @@ def _add_network(p: argparse.ArgumentParser, required: bool = True) -> None:
     p.add_argument("--post-process", action="store_true",
                    help="Monodepth's flip post-processing (predicts image and mirror image, blends; 2× time)")
     p.add_argument("--batch-size", type=_positive_int, default=4, help="frames per network call (default 4)")
-    p.add_argument("--device", default="auto", help="auto | cpu | cuda | cuda:N (default auto)")
+    p.add_argument("--device", type=_device, default="auto",
+                   help="auto | cpu | cuda | cuda:N | mps (default auto: cuda when available)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar (default: bar on a terminal)")
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog="f2depth", description="F2Depth: self-supervised indoor monocular depth. Use a trained model.",
         epilog=EXIT_NOTE,
     )
@@ -111,8 +182,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="focal length x in pixels of the input image, for --ply "
                         "(default: NYU Depth V2's field of view, fx = fy = 0.811*W)")
     p.add_argument("--fy", type=_positive_float, help="focal length y in pixels (default fx)")
-    p.add_argument("--cx", type=float, help="principal point x in pixels (default (W-1)/2)")
-    p.add_argument("--cy", type=float, help="principal point y in pixels (default (H-1)/2)")
+    p.add_argument("--cx", type=_finite, help="principal point x in pixels (default (W-1)/2)")
+    p.add_argument("--cy", type=_finite, help="principal point y in pixels (default (H-1)/2)")
     p.add_argument("--upsample", choices=("bilinear", "nearest"), default="bilinear",
                    help="resizing of the disparity back to the input size (default bilinear)")
     p.set_defaults(func=_cmd_predict)
@@ -122,9 +193,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--model", type=Path, required=True, metavar="M", help="depth checkpoint (.pt)")
     p.add_argument("--format", choices=("onnx",), default="onnx", help="export format (onnx)")
     p.add_argument("--output", type=Path, required=True, metavar="F", help="output file (.onnx)")
-    p.add_argument("--height", type=_multiple_of_32, help="input height (default: the training height)")
-    p.add_argument("--width", type=_multiple_of_32, help="input width (default: the training width)")
-    p.add_argument("--opset", type=_positive_int, default=17, help="ONNX opset (default 17)")
+    p.add_argument("--height", type=_export_side,
+                   help=f"input height, a multiple of 32 in {MIN_SIDE}..{MAX_SIDE} (default: the training "
+                        "height); height × width at most 2048×2048")
+    p.add_argument("--width", type=_export_side,
+                   help="input width, as --height (default: the training width)")
+    p.add_argument("--opset", type=_opset, default=DEFAULT_OPSET,
+                   help=f"ONNX opset, {MIN_OPSET}..{MAX_OPSET} (default {DEFAULT_OPSET})")
     p.set_defaults(func=_cmd_export)
 
     p = sub.add_parser("reconstruct", formatter_class=fmt, help="TSDF fusion of a posed sequence → mesh",
@@ -165,6 +240,10 @@ def _out(text: str) -> None:
     sys.stdout.write(text + "\n")
 
 
+def _warn(command: str, text: str) -> None:
+    sys.stderr.write(f"f2depth {command}: warning: {' '.join(str(text).split())}\n")
+
+
 def _cmd_predict(args: argparse.Namespace) -> int:
     from f2depth.inference.backends import load_backend
     from f2depth.inference.predict import Predictor, PredictSettings, run_predict
@@ -182,14 +261,23 @@ def _cmd_predict(args: argparse.Namespace) -> int:
     kind = "metric" if summary["metric"] else "relative (no --scale/--scale-from)"
     _out(f"wrote {summary['frames']} frame(s) to {args.output} ({backend.name}, "
          f"scale {summary['scale']:.4g}, {kind})")
+    for text in summary["warnings"]:
+        _warn(args.command, text)
     return 0
 
 
 def _cmd_export(args: argparse.Namespace) -> int:
     from f2depth.inference.backends import load_depth_model
     from f2depth.inference.export import export_onnx
+    from f2depth.inference.outputs import check_output_file
 
+    check_output_file(args.output)
     model = load_depth_model(args.model, "cpu")
+    try:
+        check_export_size(args.height or model.config.height, args.width or model.config.width)
+    except ValueError as exc:
+        raise UsageError(f"{exc} (--height/--width; {args.model} was trained at "
+                         f"{model.config.height}×{model.config.width})") from None
     parity = export_onnx(model, args.output, args.height, args.width, opset=args.opset,
                          source=str(args.model))
     h, w = parity.hw
@@ -201,6 +289,7 @@ def _cmd_export(args: argparse.Namespace) -> int:
 
 def _cmd_reconstruct(args: argparse.Namespace) -> int:
     from f2depth.inference.backends import load_backend
+    from f2depth.inference.outputs import check_output_file
     from f2depth.inference.predict import Predictor
     from f2depth.inference.reconstruct import ReconstructSettings, TSDFSettings, reconstruct
     from f2depth.inference.sequences import sevenscenes_sequence, synth_sequence
@@ -210,6 +299,10 @@ def _cmd_reconstruct(args: argparse.Namespace) -> int:
         raise UsageError("give --model or --onnx (or --depth-source reference)")
     if args.poses == "synth" and args.gt is None:
         raise UsageError("--poses synth needs --gt DIR (the sequence's ground-truth .npz folder)")
+    for option, path in (("--output", args.output), ("--reference-mesh", args.reference_mesh),
+                         ("--metrics", args.metrics)):
+        if path is not None:
+            check_output_file(path, option)
     tsdf = TSDFSettings(voxel=args.voxel, trunc=args.trunc, max_depth=args.max_depth)
     if args.poses == "synth":
         frames = synth_sequence(args.sequence, args.gt, args.stride, args.max_frames)
@@ -245,7 +338,8 @@ def _fail(command: str, message: str, code: int) -> int:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run the command line; returns the exit code (argparse exits with 2 itself on usage errors)."""
+    """Run the command line; returns the exit code (argparse exits with 2 itself on usage errors, in one
+    line)."""
     args = build_parser().parse_args(argv)
     from f2depth.data.errors import DataError
     from f2depth.inference.export import ExportError
@@ -265,6 +359,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         return _fail(args.command, f"{where}{exc.strerror or exc}", EXIT_INPUT)
     except KeyboardInterrupt:
         return _fail(args.command, "interrupted; every file written so far is complete", EXIT_INTERRUPTED)
+    except MemoryError:
+        return _fail(args.command, "out of memory; every file written so far is complete: use smaller "
+                                   "inputs or a smaller --batch-size", EXIT_INPUT)
+    except (RuntimeError, ValueError) as exc:  # last resort (torch, OpenCV, Open3D): one line, not a trace
+        first = str(exc).strip().splitlines()[0][:300] if str(exc).strip() else ""
+        return _fail(args.command, f"{type(exc).__name__}: {first}; every file written so far is complete",
+                     EXIT_INPUT)
 
 
 if __name__ == "__main__":

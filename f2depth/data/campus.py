@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 
 from f2depth.data.errors import DataError
-from f2depth.data.images import check_complete, read_bytes, read_image
+from f2depth.data.images import decode, read_bytes, read_image
 
 HEADER = ["scene", "image", "u", "v", "depth_m"]
 IMAGE_EXTS = (".jpg", ".jpeg", ".png")
@@ -40,11 +40,8 @@ def _image_file(name: str) -> str:
 
 
 def _image_hw(path: Path) -> tuple[int, int]:
-    data = read_bytes(path, "image")
-    check_complete(path, data)
-    img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
-    if img is None:
-        raise DataError(path, "unreadable image (OpenCV cannot decode it)", _FIX)
+    """(H, W) of a labelled image, decoded once so that a damaged or oversized file fails here."""
+    img = decode(path, read_bytes(path, "image"), cv2.IMREAD_COLOR)
     return img.shape[0], img.shape[1]
 
 

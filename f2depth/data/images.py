@@ -3,22 +3,34 @@
 OpenCV decodes a truncated JPEG without complaint (grey rows at the bottom), so before decoding the
 bytes are checked against what the format's own header promises: the PNM payload size, the PNG chunk
 chain up to ``IEND``, the JPEG end-of-image marker.
+
+The image size is read from the header before anything is decoded (PNG ``IHDR``, the JPEG frame header,
+the PNM header; other formats through Pillow's lazy ``Image.open``), and images of more than
+:data:`MAX_PIXELS` (100 megapixels) are refused: a header may claim any size (100000×100000 is 30 GB of
+RGB), and the depth pipeline keeps several full-size float copies of every image.
 """
 
 from __future__ import annotations
 
+import io
 import os
 import re
+import warnings
 from pathlib import Path
 
 import cv2
 import numpy as np
+from PIL import Image
 
 from f2depth.data.errors import DataError
 from f2depth.io import imwrite
 
 _FIX_REPLACE = "re-copy the file from the original dataset (or regenerate it with `dvc repro synth`)"
 _PNM_TOKEN = re.compile(rb"\s*(?:#[^\n]*\n\s*)*(\S+)")
+#: largest image (height × width) that is decoded; larger ones are refused from their header
+MAX_PIXELS = 100_000_000
+#: JPEG start-of-frame markers (SOF0..SOF15 without DHT C4, JPG C8 and DAC CC): they carry the size
+_JPEG_SOF = frozenset(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}
 
 
 def read_bytes(path: str | os.PathLike, what: str = "file") -> bytes:
@@ -34,7 +46,8 @@ def read_bytes(path: str | os.PathLike, what: str = "file") -> bytes:
         raise DataError(p, f"cannot read {what} ({exc.strerror})", "check its permissions") from exc
 
 
-def _check_pnm(path: Path, data: bytes) -> None:
+def _pnm_header(path: Path, data: bytes) -> tuple[int, int, list[int], int]:
+    """(width, height, [maxval], offset after the header tokens) of a PNM file."""
     pos, tokens = 2, []
     while len(tokens) < (2 if data[:2] in (b"P1", b"P4") else 3):
         m = _PNM_TOKEN.match(data, pos)
@@ -46,6 +59,11 @@ def _check_pnm(path: Path, data: bytes) -> None:
         w, h, *rest = (int(t) for t in tokens)
     except ValueError as exc:
         raise DataError(path, f"malformed PNM header {tokens!r}", _FIX_REPLACE) from exc
+    return w, h, rest, pos
+
+
+def _check_pnm(path: Path, data: bytes) -> None:
+    w, h, rest, pos = _pnm_header(path, data)
     if data[:2] not in (b"P5", b"P6"):
         return  # ASCII / bitmap PNM: no fixed payload size to check, leave it to the decoder
     channels = 3 if data[:2] == b"P6" else 1
@@ -92,11 +110,89 @@ def check_complete(path: str | os.PathLike, data: bytes) -> None:
         _check_jpeg(p, data)
 
 
-def _decode(path: Path, data: bytes, flags: int) -> np.ndarray:
+def _jpeg_hw(data: bytes) -> tuple[int, int] | None:
+    """(height, width) from the first start-of-frame segment of a JPEG; None if there is none."""
+    pos = 2
+    while pos + 4 <= len(data):
+        if data[pos] != 0xFF:
+            return None  # not at a marker: a damaged stream, left to the decoder
+        marker = data[pos + 1]
+        if marker == 0xFF:  # fill byte
+            pos += 1
+            continue
+        if marker in (0x01, *range(0xD0, 0xD8)):  # markers without a length
+            pos += 2
+            continue
+        if marker in (0xD9, 0xDA):  # end of image / start of scan before any frame header
+            return None
+        if marker in _JPEG_SOF:
+            if pos + 9 > len(data):
+                return None
+            return int.from_bytes(data[pos + 5:pos + 7], "big"), int.from_bytes(data[pos + 7:pos + 9], "big")
+        pos += 2 + int.from_bytes(data[pos + 2:pos + 4], "big")
+    return None
+
+
+def header_hw(path: str | os.PathLike, data: bytes) -> tuple[int, int] | None:
+    """(height, width) that the header of image bytes ``data`` claims, without decoding the pixels.
+
+    PNG, JPEG and PNM headers are parsed here, other formats by Pillow's lazy ``Image.open``; None when
+    the format is not recognised (the decoder then decides). A header that claims more than Pillow's
+    decompression-bomb limit → DataError.
+    """
+    if data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) >= 24 and data[12:16] == b"IHDR":
+        return int.from_bytes(data[20:24], "big"), int.from_bytes(data[16:20], "big")
+    if data[:2] == b"\xff\xd8":
+        return _jpeg_hw(data)
+    if data[:2] in (b"P1", b"P2", b"P3", b"P4", b"P5", b"P6"):
+        w, h, _, _ = _pnm_header(Path(path), data)
+        return h, w
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+        try:
+            with Image.open(io.BytesIO(data)) as im:
+                w, h = im.size
+        except Image.DecompressionBombError as exc:
+            raise DataError(path, f"image too large ({exc})", "use an image of at most "
+                                  f"{MAX_PIXELS // 1_000_000} megapixels") from None
+        except (OSError, SyntaxError, ValueError):  # Pillow cannot read it: leave it to OpenCV
+            return None
+    return h, w
+
+
+def check_pixels(path: str | os.PathLike, data: bytes, max_pixels: int = MAX_PIXELS) -> None:
+    """Raise DataError when the header of ``data`` claims an empty image or one of more than
+    ``max_pixels`` pixels (checked before decoding, so a forged header costs nothing)."""
+    hw = header_hw(path, data)
+    if hw is None:
+        return
+    h, w = hw
+    if h <= 0 or w <= 0:
+        raise DataError(path, f"its header claims an empty image ({w}×{h})", _FIX_REPLACE)
+    if h * w > max_pixels:
+        raise DataError(path, f"its header claims {w}×{h} pixels ({h * w / 1e6:.0f} megapixels), more than "
+                              f"the {max_pixels / 1e6:g} megapixels f2depth decodes",
+                        "downscale the image (or check that the file is not damaged)")
+
+
+def check_decodable(path: str | os.PathLike, data: bytes) -> None:
+    """Before decoding ``data`` (the bytes of ``path``): complete (:func:`check_complete`) and of a
+    decodable size (:func:`check_pixels`)."""
     check_complete(path, data)
-    img = cv2.imdecode(np.frombuffer(data, np.uint8), flags)
+    check_pixels(path, data)
+
+
+def decode(path: str | os.PathLike, data: bytes, flags: int = cv2.IMREAD_COLOR) -> np.ndarray:
+    """Checked image bytes → OpenCV's array (BGR for colour); anything OpenCV refuses → DataError."""
+    p = Path(path)
+    check_decodable(p, data)
+    try:
+        img = cv2.imdecode(np.frombuffer(data, np.uint8), flags)
+    except cv2.error as exc:  # e.g. its own pixel limit for formats whose header is not read here
+        detail = " ".join(str(exc).split())[-160:]
+        raise DataError(p, f"unreadable image (OpenCV: {detail})", _FIX_REPLACE) from None
     if img is None:
-        raise DataError(path, "unreadable image (OpenCV cannot decode it)", _FIX_REPLACE)
+        raise DataError(p, "unreadable image (OpenCV cannot decode it)", _FIX_REPLACE)
     return img
 
 
@@ -112,7 +208,7 @@ def _check_size(path: Path, img: np.ndarray, expect_hw: tuple[int, int] | None) 
 def read_image(path: str | os.PathLike, expect_hw: tuple[int, int] | None = None) -> np.ndarray:
     """Colour image → RGB uint8 (H, W, 3); grey files are expanded to three channels."""
     p = Path(path)
-    img = _decode(p, read_bytes(p, "image"), cv2.IMREAD_COLOR)
+    img = decode(p, read_bytes(p, "image"), cv2.IMREAD_COLOR)
     _check_size(p, img, expect_hw)
     return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
 
@@ -120,7 +216,7 @@ def read_image(path: str | os.PathLike, expect_hw: tuple[int, int] | None = None
 def read_png16(path: str | os.PathLike, expect_hw: tuple[int, int] | None = None) -> np.ndarray:
     """Single-channel 16-bit PNG (depth maps, segment labels) → uint16 (H, W)."""
     p = Path(path)
-    img = _decode(p, read_bytes(p, "image"), cv2.IMREAD_UNCHANGED)
+    img = decode(p, read_bytes(p, "image"), cv2.IMREAD_UNCHANGED)
     if img.ndim != 2 or img.dtype != np.uint16:
         raise DataError(p, f"expected a single-channel 16-bit image, found {img.dtype} with shape "
                            f"{img.shape}", _FIX_REPLACE)

@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import os
 import pickle
+import re
 import struct
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -29,6 +30,9 @@ from f2depth.io import torch_save
 
 CHECKPOINT_FORMAT = "f2depth.depth"
 CHECKPOINT_VERSION = 1
+_ANSI = re.compile(r"\x1b\[[0-9;]*m")  # torch colours parts of its load errors
+_UNSUPPORTED = re.compile(r"Unsupported global: GLOBAL (\S+)")
+_UNPICKLER = re.compile(r"WeightsUnpickler error: (.*?) Check the documentation")
 
 
 @dataclass(frozen=True)
@@ -165,16 +169,38 @@ def save_checkpoint(
     torch_save(path, ckpt)
 
 
+def _load_error(path: Path, exc: BaseException) -> str:
+    """One line for a ``torch.load`` failure. torch's advice to retry with ``weights_only=False`` (which
+    would run whatever code the file pickled) is never passed on: such a file is not an f2depth
+    checkpoint."""
+    text = " ".join(_ANSI.sub("", str(exc)).split())
+    found = _UNSUPPORTED.search(text)
+    if found:
+        return (f"{path}: not an f2depth checkpoint: it holds pickled Python objects ({found.group(1)}), "
+                "which a weights_only load refuses and f2depth never unpickles; give a model written by "
+                "f2depth (models/depth_<variant>/model.pt)")
+    reason = _UNPICKLER.search(text)
+    if reason:
+        first = f"WeightsUnpickler: {reason.group(1)}"
+    else:
+        first = text[:200] if text and "weights_only" not in text else type(exc).__name__
+    return f"{path}: not a readable torch checkpoint ({first})"
+
+
 def read_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
-    """Load and validate a depth checkpoint dict (format, version, keys); tensors on CPU."""
+    """Load and validate a depth checkpoint dict (format, version, keys); tensors on CPU. Every problem is
+    a ValueError whose one line starts with the path (FileNotFoundError when it does not exist)."""
     path = Path(path)
+    if path.is_dir():
+        inside = sorted(p.name for p in path.glob("*.pt"))[:4]
+        hint = f"give a checkpoint file in it ({', '.join(inside)})" if inside else "give a checkpoint file"
+        raise ValueError(f"{path}: is a directory, not a depth checkpoint; {hint}")
     if not path.is_file():
         raise FileNotFoundError(f"{path}: depth checkpoint not found; run `dvc repro train_depth` first")
     try:
         ckpt = torch.load(path, map_location="cpu", weights_only=True)
     except (RuntimeError, OSError, ValueError, EOFError, struct.error, pickle.UnpicklingError) as exc:
-        first = str(exc).strip().splitlines()[0][:200] if str(exc).strip() else type(exc).__name__
-        raise ValueError(f"{path}: not a readable torch checkpoint ({first})") from exc
+        raise ValueError(_load_error(path, exc)) from exc
     if not isinstance(ckpt, dict):
         raise ValueError(f"{path}: expected a checkpoint dict, got {type(ckpt).__name__}")
     fmt = ckpt.get("format")
@@ -195,6 +221,30 @@ def read_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
     return ckpt
 
 
+def _checkpoint_config(path: str | os.PathLike, config: Any) -> DepthModelConfig:
+    """The checkpoint's ``config`` entry as a DepthModelConfig; any problem → ValueError naming the file."""
+    if not isinstance(config, dict):
+        raise ValueError(f"{path}: config is a {type(config).__name__}, not a dict of DepthModelConfig "
+                         "fields; the file is damaged, retrain or re-save it")
+    try:
+        return DepthModelConfig.from_dict(config, source=f"{path}: config")
+    except ValueError as exc:
+        text = str(exc)
+        raise ValueError(text if text.startswith(f"{path}:") else f"{path}: config: {text}") from None
+
+
+def _check_finite(path: str | os.PathLike, state: dict[str, torch.Tensor]) -> None:
+    """ValueError naming the file, the count and the first tensor when any floating weight is NaN or ±inf
+    (a diverged training saves such weights, and they predict NaN depth everywhere)."""
+    bad = {k: int((~torch.isfinite(v)).sum()) for k, v in state.items() if v.is_floating_point()}
+    bad = {k: n for k, n in bad.items() if n}
+    if bad:
+        first = next(iter(bad))
+        raise ValueError(f"{path}: {sum(bad.values())} non-finite weight(s) (NaN or inf) in {len(bad)} "
+                         f"tensor(s), first {first}; the model is broken (a diverged training?): retrain "
+                         "it or use another checkpoint")
+
+
 def load_checkpoint(path: str | os.PathLike, map_location: str | torch.device = "cpu",
                     decoder_upsample: str | None = None) -> DepthModel:
     """Rebuild a DepthModel from a checkpoint written by ``save_checkpoint`` (strict key check).
@@ -205,12 +255,17 @@ def load_checkpoint(path: str | os.PathLike, map_location: str | torch.device = 
     training uses nearest. None: as trained.
     """
     ckpt = read_checkpoint(path)
-    config = DepthModelConfig.from_dict(ckpt["config"], source=f"{path}: config")
+    config = _checkpoint_config(path, ckpt["config"])
     if decoder_upsample is not None:
         config = dataclasses.replace(config, upsample_mode=decoder_upsample)
+    state = ckpt["state_dict"]
+    if not isinstance(state, dict) or not all(isinstance(v, torch.Tensor) for v in state.values()):
+        raise ValueError(f"{path}: state_dict is not a dict of tensors; the file is damaged, retrain or "
+                         "re-save it")
+    _check_finite(path, state)
     model = DepthModel(config)
     try:
-        result = model.load_state_dict(ckpt["state_dict"], strict=False)
+        result = model.load_state_dict(state, strict=False)
     except RuntimeError as exc:  # shape mismatches
         raise ValueError(f"{path}: state_dict does not fit DepthModel({config}): {exc}") from exc
     if result.missing_keys or result.unexpected_keys:

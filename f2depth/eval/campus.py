@@ -29,7 +29,7 @@ import torch
 import torch.nn.functional as F
 from tqdm import tqdm
 
-from f2depth.eval.inputs import check_rgb, run_batch, to_input
+from f2depth.eval.inputs import check_finite_gt, check_rgb, report_skipped, run_batch, to_input
 from f2depth.eval.inputs import field as sample_field
 from f2depth.eval.metrics import (
     METRIC_NAMES,
@@ -154,6 +154,7 @@ def evaluate_campus(
         pts = np.asarray(sample_field(sample, "points", 3), dtype=np.float64)
         if pts.ndim != 2 or pts.shape[1] != 3:
             raise ValueError(f"Campus {key}: points must be (K,3) = u, v, depth_m, got {pts.shape}")
+        check_finite_gt(pts, f"Campus {key}")
         H, W = rgb.shape[:2]
         outside = (pts[:, 0] < -0.5) | (pts[:, 0] > W - 0.5) | (pts[:, 1] < -0.5) | (pts[:, 1] > H - 0.5)
         if np.any(outside):
@@ -184,6 +185,7 @@ def evaluate_campus(
                 np.float32
             )
 
+    report_skipped("Campus", skipped, len(records))
     per_image = stack_per_image(records)
     scene_names = [k[0] for k in keys]
     scenes: dict[str, Summary] = {}

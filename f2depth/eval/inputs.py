@@ -6,6 +6,7 @@ then mapping keys, and as a last resort a position in a plain tuple (the loaders
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Iterable, Iterator, Sequence
 from typing import Any, TypeVar
 
@@ -14,9 +15,11 @@ import numpy as np
 import torch
 from PIL import Image
 
+from f2depth.data.errors import DataError
 from f2depth.eval.metrics import PredictDisp, predict_disparity
 
 T = TypeVar("T")
+log = logging.getLogger(__name__)
 
 INTERPOLATIONS = ("area", "lanczos")
 """Input resize filters (the network input is always a shrunk image).
@@ -63,6 +66,30 @@ def check_rgb(rgb: Any, what: str) -> np.ndarray:
     if rgb.dtype != np.uint8:
         raise ValueError(f"{what}: rgb must be uint8 (0..255), got {rgb.dtype}")
     return rgb
+
+
+def nonfinite_count(values: Any) -> int:
+    """Number of NaN or ±inf entries of a ground-truth array (0 for integer arrays)."""
+    arr = np.asarray(values)
+    return int(np.count_nonzero(~np.isfinite(arr))) if np.issubdtype(arr.dtype, np.floating) else 0
+
+
+def check_finite_gt(values: Any, what: str) -> None:
+    """DataError naming ``what`` and the count when ground truth holds NaN or ±inf: every loader marks
+    missing depth with 0, so a non-finite value is damage and would otherwise silently drop pixels (or
+    a whole image) from the metrics."""
+    bad = nonfinite_count(values)
+    if bad:
+        raise DataError(what, f"ground truth has {bad} non-finite value(s) (NaN or inf) of "
+                              f"{np.asarray(values).size}", "missing depth must be 0; check the test data")
+
+
+def report_skipped(protocol: str, skipped: Sequence[Any], evaluated: int) -> None:
+    """Log one warning line when images were left out because no ground-truth pixel is valid."""
+    if skipped:
+        log.warning("%s: %d of %d test images skipped: no valid ground-truth pixel (first: %s); the metrics "
+                    "are over the other %d", protocol, len(skipped), len(skipped) + evaluated, skipped[0],
+                    evaluated)
 
 
 def resize_rgb(rgb: np.ndarray, hw: tuple[int, int], interpolation: str = "area") -> np.ndarray:

@@ -9,7 +9,8 @@ median-scale, clip to [0.1, 10] m, eight metrics. Dataset metrics are the mean o
 
 Samples (from ``f2depth.data``), read by attribute (or mapping key, or position in a plain tuple):
 ``index`` (0, optional: the running position is used when absent), ``rgb`` (1) (H,W,3) uint8,
-``depth`` (2) (H,W) float32 metres with 0 = invalid, ``scene`` (3, optional).
+``depth`` (2) (H,W) float32 metres with 0 = invalid (NaN or inf → DataError), ``scene`` (3, optional).
+Images without a valid pixel are skipped and logged in one warning line.
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from f2depth.eval.inputs import batched, check_rgb, run_batch, to_input
+from f2depth.eval.inputs import batched, check_finite_gt, check_rgb, report_skipped, run_batch, to_input
 from f2depth.eval.inputs import field as sample_field
 from f2depth.eval.metrics import (
     EmptyMaskError,
@@ -136,6 +137,7 @@ def evaluate_nyu(
         counter += 1
         rgb = check_rgb(sample_field(sample, "rgb", 1), f"NYU sample {idx}")
         gt = np.asarray(sample_field(sample, "depth", 2), dtype=np.float32)
+        check_finite_gt(gt, f"NYU sample {idx}")
         if gt.shape != rgb.shape[:2]:
             raise ValueError(f"NYU sample {idx}: depth {gt.shape} does not match rgb {rgb.shape[:2]}")
         try:
@@ -176,6 +178,7 @@ def evaluate_nyu(
                 scenes.append(scene)
                 if idx in keep:
                     predictions[idx] = clip_depth(pred * ratio, min_depth, max_depth).astype(np.float32)
+    report_skipped("NYU", skipped, len(records))
     per_image = stack_per_image(records)
     return NyuResult(
         summary=aggregate(per_image), per_image=per_image, index=np.asarray(indices, dtype=np.int64),

@@ -14,11 +14,14 @@ with the official test counts (:data:`TEST_FRAMES`), not by the unweighted one: 
 
 Samples (from ``f2depth.data``), read by attribute or mapping key: ``rgb`` (H,W,3) uint8, ``depth``
 (H,W) float metres with 0 = invalid (an integer array is taken as the raw PNG in millimetres, 65535
-invalid), ``scene`` (str), ``seq`` and ``frame`` (identifiers, any type).
+invalid; NaN or inf metres count as invalid too, and their count is logged in one warning line),
+``scene`` (str), ``seq`` and ``frame`` (identifiers, any type). Frames without a valid pixel are skipped
+and logged.
 """
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Collection, Iterable
 from dataclasses import dataclass, field
 from typing import Any
@@ -26,7 +29,7 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from f2depth.eval.inputs import batched, check_rgb, run_batch, to_input
+from f2depth.eval.inputs import batched, check_rgb, nonfinite_count, report_skipped, run_batch, to_input
 from f2depth.eval.inputs import field as sample_field
 from f2depth.eval.metrics import (
     METRIC_NAMES,
@@ -50,6 +53,7 @@ TEST_FRAMES: dict[str, int] = {
 INVALID_MM = 65535
 AVERAGE_ROW = "Average"
 ALL_FRAMES_ROW = "All frames"
+log = logging.getLogger(__name__)
 
 
 def depth_metres(depth: Any) -> np.ndarray:
@@ -138,10 +142,18 @@ def evaluate_sevenscenes(
     skipped: list[tuple[str, Any, Any]] = []
     predictions: dict[tuple[str, Any, Any], np.ndarray] = {}
 
+    nonfinite = {"pixels": 0, "frames": 0, "first": None}
+
     def prepared(sample: Any) -> tuple[tuple[str, Any, Any], Any, np.ndarray]:
         key = (str(sample_field(sample, "scene")), sample_field(sample, "seq"), sample_field(sample, "frame"))
         rgb = check_rgb(sample_field(sample, "rgb"), f"7-Scenes {key}")
-        gt = depth_metres(sample_field(sample, "depth"))
+        raw = sample_field(sample, "depth")
+        bad = nonfinite_count(raw)  # NaN/inf metres count as missing (depth_metres), and are reported
+        if bad:
+            nonfinite["pixels"] += bad
+            nonfinite["frames"] += 1
+            nonfinite["first"] = nonfinite["first"] or key
+        gt = depth_metres(raw)
         if gt.ndim != 2:
             raise ValueError(f"7-Scenes {key}: depth must be (H,W), got {gt.shape}")
         return key, to_input(rgb, (height, width), interpolation), gt
@@ -174,6 +186,10 @@ def evaluate_sevenscenes(
                 if key in keep:
                     predictions[key] = clip_depth(pred * ratio, min_depth, max_depth).astype(np.float32)
 
+    if nonfinite["pixels"]:
+        log.warning("7-Scenes: %d ground-truth pixels in %d frame(s) are NaN or inf and count as missing "
+                    "depth (first frame: %s)", nonfinite["pixels"], nonfinite["frames"], nonfinite["first"])
+    report_skipped("7-Scenes", skipped, len(records))
     per_image = stack_per_image(records)
     scene_names = [k[0] for k in keys]
     scenes: dict[str, Summary] = {}

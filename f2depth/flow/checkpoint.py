@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import os
 import pickle
+import re
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -35,15 +36,27 @@ class CheckpointError(ValueError):
 
 def _torch_load(path: str | os.PathLike) -> Any:
     p = Path(path)
+    if p.is_dir():
+        raise CheckpointError(f"{p}: is a directory, not a checkpoint file; {_FIX_ARFLOW}")
     if not p.is_file():
-        raise CheckpointError(f"{p}: checkpoint not found; check flow_pretrain.checkpoint in params.yaml")
+        raise CheckpointError(f"{p}: flow checkpoint not found; check the params.yaml key that names it "
+                              "(flow_pretrain.checkpoint, flow_finetune.pretrained or "
+                              "variants.<name>.flow_model)")
     try:
         return torch.load(p, map_location="cpu", weights_only=True)
     except (pickle.UnpicklingError, RuntimeError, EOFError, ValueError, OSError, AttributeError,
             TypeError, KeyError, IndexError) as exc:
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise CheckpointError(f"{p}: not a PyTorch checkpoint readable with weights_only=True ({first}); "
-                              f"{_FIX_ARFLOW}") from exc
+        text = " ".join(re.sub(r"\x1b\[[0-9;]*m", "", str(exc)).split())
+        # torch's advice to load with weights_only=False (running pickled code) is never passed on
+        found = re.search(r"Unsupported global: GLOBAL (\S+)", text)
+        if found:
+            raise CheckpointError(f"{p}: not an f2depth or ARFlow checkpoint: it holds pickled Python "
+                                  f"objects ({found.group(1)}), which a weights_only load refuses and "
+                                  f"f2depth never unpickles; {_FIX_ARFLOW}") from exc
+        reason = re.search(r"WeightsUnpickler error: (.*?) Check the documentation", text)
+        first = (f"WeightsUnpickler: {reason.group(1)}" if reason
+                 else text[:200] if text and "weights_only" not in text else type(exc).__name__)
+        raise CheckpointError(f"{p}: not a PyTorch checkpoint ({first}); {_FIX_ARFLOW}") from exc
 
 
 def _is_state_dict(obj: Any) -> bool:

@@ -90,6 +90,9 @@ class OnnxBackend:
         ort = require("onnxruntime", "running an ONNX model (--onnx)")
         self.source = str(path)
         p = Path(path)
+        if p.is_dir():
+            raise DataError(p, "is a directory, not an ONNX model", "give the .onnx file written by "
+                               "`f2depth export --format onnx`")
         if not p.is_file():
             raise DataError(p, "ONNX model not found", "create it with `f2depth export --format onnx`")
         providers = ["CPUExecutionProvider"]

@@ -15,10 +15,10 @@ from torch import nn
 
 from f2depth.depth import DepthModel
 from f2depth.inference.backends import ONNX_FORMAT, ONNX_INPUT, ONNX_OUTPUT, ONNX_VERSION, OnnxBackend
+from f2depth.inference.limits import DEFAULT_OPSET, check_export_size, check_opset
 from f2depth.inference.optional import require
 from f2depth.io import atomic_path
 
-DEFAULT_OPSET = 17
 #: parity tolerance: max |Δdepth| / depth between onnxruntime and PyTorch (float32 round-off is ~1e-6)
 PARITY_RTOL = 1e-4
 
@@ -67,11 +67,16 @@ def _onnx_bytes(model: DepthModel, hw: tuple[int, int], opset: int) -> bytes:
         # the legacy (TorchScript) exporter is used because the dynamo one needs onnxscript; its
         # deprecation, tracer and constant-folding notes say nothing about this graph
         warnings.simplefilter("ignore")
-        torch.onnx.export(
-            DepthNetwork(model).eval(), (dummy,), buf, dynamo=False, opset_version=opset,
-            input_names=[ONNX_INPUT], output_names=[ONNX_OUTPUT],
-            dynamic_axes={ONNX_INPUT: {0: "batch"}, ONNX_OUTPUT: {0: "batch"}},
-        )
+        try:
+            torch.onnx.export(
+                DepthNetwork(model).eval(), (dummy,), buf, dynamo=False, opset_version=opset,
+                input_names=[ONNX_INPUT], output_names=[ONNX_OUTPUT],
+                dynamic_axes={ONNX_INPUT: {0: "batch"}, ONNX_OUTPUT: {0: "batch"}},
+            )
+        except RuntimeError as exc:  # the exporter's own errors (torch.onnx.OnnxExporterError is one)
+            first = str(exc).strip().splitlines()[0][:200] if str(exc).strip() else type(exc).__name__
+            raise ExportError(f"torch.onnx.export failed at {hw[0]}×{hw[1]}, opset {opset} ({first}); "
+                              "nothing written") from None
     return buf.getvalue()
 
 
@@ -79,6 +84,7 @@ def export_onnx(model: DepthModel, path: str | os.PathLike, height: int | None =
                 width: int | None = None, opset: int = DEFAULT_OPSET, source: str = "",
                 rtol: float = PARITY_RTOL) -> Parity:
     """Export ``model``'s depth network at (height, width) (default: its training size) to ``path``.
+    Sizes and opsets outside the bounds of ``f2depth.inference.limits`` → ValueError.
 
     The graph gets f2depth metadata (format, version, size, depth range, source checkpoint) that
     ``OnnxBackend`` checks. The file is written to a temporary name, checked with ``onnx.checker`` and
@@ -89,8 +95,8 @@ def export_onnx(model: DepthModel, path: str | os.PathLike, height: int | None =
     require("onnxruntime", "the ONNX export's parity check")
     h = int(height if height is not None else model.config.height)
     w = int(width if width is not None else model.config.width)
-    if h <= 0 or w <= 0 or h % 32 or w % 32:
-        raise ValueError(f"export size {h}×{w}: height and width must be positive multiples of 32")
+    check_export_size(h, w)
+    check_opset(opset)
     model = model.eval().cpu()
     proto = onnx.load_from_string(_onnx_bytes(model, (h, w), opset))
     meta = {"format": ONNX_FORMAT, "version": str(ONNX_VERSION), "height": str(h), "width": str(w),

@@ -9,6 +9,7 @@ first frame (``scale_from``), and applies that one factor to every frame.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -18,10 +19,11 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from f2depth.data.errors import DataError
 from f2depth.eval.inputs import batched, to_input
 from f2depth.eval.metrics import depth_from_disparity, predict_disparity, resize_disparity
 from f2depth.inference.backends import DepthBackend
-from f2depth.inference.outputs import SUFFIXES, intrinsics, write_frame
+from f2depth.inference.outputs import SUFFIXES, check_output_folder, intrinsics, write_frame
 from f2depth.inference.scaling import median_ratio, read_reference_depth
 from f2depth.inference.sources import Frame
 from f2depth.io import write_json
@@ -54,15 +56,27 @@ class Predictor:
         with torch.inference_mode():
             return predict_disparity(self._disp, x, post_process=self.post_process)
 
-    def predict(self, rgbs: Sequence[np.ndarray]) -> list[np.ndarray]:
-        """RGB uint8 images (H_i,W_i,3), sizes may differ → depth (H_i,W_i) float32 per image (relative)."""
+    def predict(self, rgbs: Sequence[np.ndarray], origins: Sequence[str] | None = None) -> list[np.ndarray]:
+        """RGB uint8 images (H_i,W_i,3), sizes may differ → depth (H_i,W_i) float32 per image (relative).
+
+        Every depth map is checked to be finite and positive: a broken model (NaN weights, a damaged
+        export) → DataError naming the image (``origins[i]``, else its position) and the model.
+        """
         if not rgbs:
             return []
         disp = self.disparity(rgbs)
         out = []
-        for d, rgb in zip(disp, rgbs):
+        for i, (d, rgb) in enumerate(zip(disp, rgbs)):
             full = resize_disparity(d[None], tuple(np.asarray(rgb).shape[:2]), self.upsample)
-            out.append(depth_from_disparity(full[0, 0]).astype(np.float32))
+            depth = depth_from_disparity(full[0, 0]).astype(np.float32)
+            bad = int(np.count_nonzero(~(np.isfinite(depth) & (depth > 0))))
+            if bad:
+                where = origins[i] if origins is not None else f"image {i} of the batch"
+                raise DataError(where, f"the network predicted {bad} non-finite or non-positive depth "
+                                       f"value(s) of {depth.size}; nothing is written for this frame",
+                                f"the model {self.backend.source or self.backend.name} is broken (NaN "
+                                "weights or a damaged export): retrain or re-export it")
+            out.append(depth)
         return out
 
 
@@ -83,21 +97,25 @@ class PredictSettings:
 def run_predict(frames: Iterable[Frame], predictor: Predictor, settings: PredictSettings,
                 total: int | None = None, input_desc: str = "") -> dict[str, Any]:
     """Predict every frame and write its files (outputs module) as soon as its batch is done, so an
-    interrupted run leaves complete files only; finally ``predict.json`` (the run's summary). Returns it."""
+    interrupted run leaves complete files only; finally ``predict.json`` (the run's summary). Returns it.
+
+    The output folder is created and checked to be writable before anything is predicted. ``total``:
+    the number of frames the source announces; fewer decoded frames (a truncated video) are reported in
+    the summary's ``warnings``.
+    """
     if settings.scale is not None and settings.scale_from is not None:
         raise ValueError("give scale or scale_from, not both")
-    if settings.scale is not None and not settings.scale > 0:
-        raise ValueError(f"scale must be > 0, got {settings.scale}")
+    if settings.scale is not None and not (math.isfinite(settings.scale) and settings.scale > 0):
+        raise ValueError(f"scale must be finite and > 0, got {settings.scale}")
     reference = read_reference_depth(settings.scale_from) if settings.scale_from is not None else None
     scale = settings.scale if settings.scale is not None else 1.0
-    out_dir = Path(settings.output_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    out_dir = check_output_folder(settings.output_dir)
     count, sizes, first_origin = 0, set(), None
     disable = None if settings.progress is None else not settings.progress
     bar = tqdm(total=total or None, desc="predict", unit="frame", disable=disable)
     try:
         for batch in batched(frames, settings.batch_size):
-            depths = predictor.predict([f.rgb for f in batch])
+            depths = predictor.predict([f.rgb for f in batch], [f.origin for f in batch])
             if reference is not None and first_origin is None:
                 scale = median_ratio(depths[0], reference, str(settings.scale_from))
             for frame, depth in zip(batch, depths):
@@ -109,9 +127,14 @@ def run_predict(frames: Iterable[Frame], predictor: Predictor, settings: Predict
             bar.update(len(batch))
     finally:
         bar.close()
+    warnings = []
+    if total and count < total:  # a video whose container announces more frames than decode
+        warnings.append(f"{input_desc or 'the input'}: only {count} of the {total} frames its container "
+                        f"announces could be decoded (a truncated or damaged file?); wrote those {count}")
     summary = {
         "input": input_desc,
         "frames": count,
+        "frames_expected": total,
         "backend": predictor.backend.name,
         "model": predictor.backend.source,
         "network_hw": list(predictor.backend.input_hw),
@@ -124,6 +147,7 @@ def run_predict(frames: Iterable[Frame], predictor: Predictor, settings: Predict
         "intrinsics": ({f"{h}x{w}": intrinsics(h, w, **settings.K_args).tolist() for h, w in sorted(sizes)}
                        if settings.ply else None),
         "files": {k: "<name>" + v for k, v in SUFFIXES.items() if k != "ply" or settings.ply},
+        "warnings": warnings,
     }
     write_json(out_dir / "predict.json", summary)
     return summary

@@ -181,7 +181,8 @@ def _predicted(frames: Sequence[SequenceFrame], predictor: Predictor | None, s: 
             chunk = frames[start:start + s.batch_size]
             rgbs = [f.rgb() for f in chunk]
             refs = [f.reference_depth(r.shape[:2]) if need_ref else None for f, r in zip(chunk, rgbs)]
-            preds = list(refs) if s.depth_source == "reference" else predictor.predict(rgbs)
+            preds = (list(refs) if s.depth_source == "reference"
+                     else predictor.predict(rgbs, [str(f.image) for f in chunk]))
             for f, pred, ref in zip(chunk, preds, refs):
                 ratios.append(None if ref is None else median_ratio(pred, ref, str(f.reference)))
                 depths.append(pred)

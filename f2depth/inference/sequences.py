@@ -50,7 +50,8 @@ class SequenceFrame:
 
 
 def read_gt_npz(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Side-car ground truth → (depth (H,W) float32 m, world_T_cam (4,4) float64, K (3,3) float64)."""
+    """Side-car ground truth → (depth (H,W) float32 m, 0 = none, world_T_cam (4,4) float64, K (3,3)
+    float64). NaN, infinite or negative depth → DataError with their count."""
     p = Path(path)
     if not p.is_file():
         raise DataError(p, "ground-truth .npz not found", _FIX_GT)
@@ -67,6 +68,10 @@ def read_gt_npz(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, np.nda
         raise DataError(p, f"bad shapes: depth {depth.shape}, world_T_cam {T.shape}, K {K.shape}", _FIX_GT)
     if not (np.all(np.isfinite(T)) and np.all(np.isfinite(K))):
         raise DataError(p, "non-finite pose or intrinsics", _FIX_GT)
+    bad = int(np.count_nonzero(~np.isfinite(depth) | (depth < 0)))
+    if bad:  # the format marks missing depth with 0; NaN or a negative depth is damage
+        raise DataError(p, f"depth has {bad} non-finite or negative value(s) of {depth.size} (missing depth "
+                           "is 0)", _FIX_GT)
     return depth.astype(np.float32), T.astype(np.float64), K.astype(np.float64)
 
 

@@ -13,13 +13,15 @@ from pathlib import Path
 
 import numpy as np
 
+from f2depth.data.errors import DataError
 from f2depth.io import save_npz
 
 _FIX = "re-run `dvc repro keypoints`"
 
 
-class KeypointFileError(ValueError):
-    """A keypoint file is missing or malformed; the message names the file and the fix."""
+class KeypointFileError(DataError):
+    """A keypoint file is missing or malformed; the message names the file and the fix (a DataError, so
+    the stages report it in one line)."""
 
 
 def pack(frame_ids: Sequence[int], points: Sequence[np.ndarray]) -> dict[str, np.ndarray]:
@@ -99,6 +101,23 @@ class KeypointFile:
     def counts(self) -> np.ndarray:
         """Points per frame, (N,) int64, in file order."""
         return np.diff(self.offsets)
+
+    def check_inside(self, height: int, width: int) -> None:
+        """KeypointFileError when any point lies outside the ``height`` × ``width`` training grid (x in
+        [0, width), y in [0, height)), with the count and the first frame. The losses would otherwise
+        clamp such points onto the image border and train on the wrong pixels without a word."""
+        x, y = self._points[:, 0].astype(np.int64), self._points[:, 1].astype(np.int64)
+        outside = (x < 0) | (x >= width) | (y < 0) | (y >= height)
+        if not outside.any():
+            return
+        first = int(np.flatnonzero(outside)[0])
+        row = int(np.searchsorted(self.offsets, first, side="right")) - 1
+        frames = np.unique(np.searchsorted(self.offsets, np.flatnonzero(outside), side="right") - 1)
+        raise KeypointFileError(
+            f"{self.path}: {int(outside.sum())} of {len(self._points)} keypoints in {len(frames)} frame(s) "
+            f"lie outside the {width}×{height} training images (first: frame {int(self.frame_ids[row])} at x="
+            f"{int(x[first])}, y={int(y[first])}); the file was made for another size: {_FIX}"
+        )
 
 
 def fill_up(points, count: int, height: int, width: int, generator=0):

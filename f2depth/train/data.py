@@ -81,6 +81,7 @@ class TupleDataset(Dataset):
             raise ValueError(f"{self.keypoints.path}: no keypoints for {len(missing)} target frames (first: "
                              f"{missing[0]}); the file does not belong to {self.prepared.root}: re-run "
                              "`dvc repro keypoints`")
+        self.keypoints.check_inside(self.height, self.width)  # never clamp stray points silently
 
     def __len__(self) -> int:
         return len(self.prepared.tuples)

@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from f2depth import tracking
+from f2depth.data.errors import DataError
 from f2depth.data.prepared import PreparedSet
 from f2depth.depth import DepthModel, DepthModelConfig, save_checkpoint
 from f2depth.io import atomic_path, write_json
@@ -78,6 +79,10 @@ def train_variant(
 ) -> dict[str, Any]:
     """Train every seed of ``s`` and write the outputs (module docstring); returns the metrics dict."""
     ctx = ctx or DistContext()
+    if s.flow_model and not Path(s.flow_model).is_file():
+        raise DataError(s.flow_model, f"flow model not found (variants.{s.variant}.flow_model)",
+                        f"`dvc repro train_depth@{s.variant}` builds it first, or set variants.{s.variant}"
+                        ".flow_model to an existing flow model (models/flow_*.pt)")
     t0 = time.perf_counter()
     prepared = PreparedSet(s.prepared)
     h, w = prepared.hw
