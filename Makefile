@@ -10,7 +10,7 @@ STAMP  := $(VENV)/.installed
 # DVC stage commands call `python`: make it the venv's.
 export PATH := $(abspath $(VENV))/bin:$(PATH)
 
-.PHONY: install repro test lint bench paper cpu clean-venv
+.PHONY: install repro test lint bench gpu-check paper cpu clean-venv
 
 $(STAMP): pyproject.toml requirements.lock
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -35,6 +35,10 @@ test: $(STAMP)
 
 bench: $(STAMP)
 	@for b in benchmarks/bench_*.py; do echo "== $$b"; $(BIN)/python $$b || exit 1; done
+
+# CUDA correctness, throughput and a projected `make paper` time on one GPU (reports/benchmarks/).
+gpu-check: $(STAMP)
+	$(BIN)/python benchmarks/gpu_check.py --device cuda --out reports/benchmarks
 
 paper: $(STAMP)
 	$(BIN)/python -m f2depth.profile paper

@@ -41,8 +41,10 @@ from f2depth.train.teacher import FlowTeacher
 PARTS = ("data", "flow", "forward", "losses", "backward")
 
 
-def write_set(root: Path, hw: tuple[int, int], tuples: int = 8, points: int = 2000, seed: int = 0) -> None:
-    """A prepared set (docs/formats.md) of ``tuples`` tuples in one scene, and its keypoint file."""
+def write_set(root: Path, hw: tuple[int, int], tuples: int = 8, points: int = 2000, seed: int = 0,
+              pairs: bool = False) -> None:
+    """A prepared set (docs/formats.md) of ``tuples`` tuples in one scene, and its keypoint file; with
+    ``pairs`` also the flow fine-tuning pairs (t, t+1) of all its frames."""
     h, w = hw
     rng = np.random.default_rng(seed)
     K = [[0.85 * w, 0.0, w / 2], [0.0, 0.85 * w, h / 2], [0.0, 0.0, 1.0]]
@@ -65,7 +67,9 @@ def write_set(root: Path, hw: tuple[int, int], tuples: int = 8, points: int = 20
                "frame_id,scene,raw_file,image,gt\n" + "\n".join(frames) + "\n")
     write_text(root / "prepared" / "tuples.csv",
                "tuple_id,scene,target,prev,next,segments\n" + "\n".join(rows) + "\n")
-    write_text(root / "prepared" / "pairs.csv", "pair_id,scene,frame1,frame2\n")
+    pair_rows = [f"s_{k:05d},s,s_{k:05d},s_{k + 1:05d}" for k in range(tuples + 1)] if pairs else []
+    write_text(root / "prepared" / "pairs.csv", "pair_id,scene,frame1,frame2\n" + "".join(
+        r + "\n" for r in pair_rows))
     save_keypoints(root / "keypoints" / "train.npz", list(range(tuples + 2)), kp)
 
 

@@ -1,8 +1,10 @@
 """torchrun / DistributedDataParallel support for depth training.
 
 ``torchrun --nproc_per_node=N stages/train_depth.py --variant full`` sets RANK, WORLD_SIZE, LOCAL_RANK,
-MASTER_ADDR and MASTER_PORT; ``init_from_env`` reads them (a plain ``python`` call is world size 1 and
-needs no process group). Backend: gloo on CPU, nccl on CUDA (device ``cuda:<LOCAL_RANK>``).
+MASTER_ADDR and MASTER_PORT; ``init_from_env`` reads them and initialises the process group — under
+torchrun always, also at world size 1, so that ``--nproc_per_node=1`` runs the DDP code path it stands
+for; a plain ``python`` call has no process group. Backend: gloo on CPU, nccl on CUDA (device
+``cuda:<LOCAL_RANK>``).
 
 Each rank reads ``global batch / world size`` items of every global batch (``data.rank_indices``), so the
 global batch and the data order do not depend on the number of processes; DDP averages the gradients.
@@ -35,10 +37,11 @@ class DistContext:
     world_size: int = 1
     local_rank: int = 0
     device: torch.device = torch.device("cpu")
+    process_group: bool = False  # launched by torchrun: a process group exists (also at world size 1)
 
     @property
     def distributed(self) -> bool:
-        return self.world_size > 1
+        return self.process_group or self.world_size > 1
 
     @property
     def is_main(self) -> bool:
@@ -48,18 +51,19 @@ class DistContext:
 def init_from_env(device: str = "auto") -> DistContext:
     """The process's rank and device from the torchrun environment; initialises the process group when
     WORLD_SIZE > 1. ``device`` is params' ``device`` (auto | cpu | cuda | cuda:N)."""
+    launched = "RANK" in os.environ and "WORLD_SIZE" in os.environ
     world = int(os.environ.get("WORLD_SIZE", "1"))
     rank = int(os.environ.get("RANK", "0"))
     local = int(os.environ.get("LOCAL_RANK", "0"))
     name = resolve_device(device)
     if name.startswith("cuda"):
-        dev = torch.device("cuda", local) if world > 1 else torch.device(name)
+        dev = torch.device("cuda", local) if launched else torch.device(name)
         torch.cuda.set_device(dev)
     else:
         dev = torch.device(name)
-    if world > 1 and not dist.is_initialized():
+    if (launched or world > 1) and not dist.is_initialized():
         dist.init_process_group("nccl" if dev.type == "cuda" else "gloo", rank=rank, world_size=world)
-    return DistContext(rank, world, local, dev)
+    return DistContext(rank, world, local, dev, process_group=dist.is_initialized())
 
 
 def cleanup(ctx: DistContext) -> None:
