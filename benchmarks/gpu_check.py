@@ -61,6 +61,7 @@ from f2depth.flow.finetune_data import FlowPairs, collate  # noqa: E402
 from f2depth.io import write_json, write_text  # noqa: E402
 from f2depth.keypoints.store import KeypointFile  # noqa: E402
 from f2depth.losses import LossWeights  # noqa: E402
+from f2depth.precision import autocast, grad_scaler  # noqa: E402
 from f2depth.train.data import DataConfig, TupleDataset  # noqa: E402
 from f2depth.train.settings import settings_from_params  # noqa: E402
 from f2depth.train.step import (  # noqa: E402
@@ -178,7 +179,7 @@ def check_depth_variants(checks: Checks, params: dict, ds: TupleDataset, device:
             with torch.no_grad():
                 loss, _ = compute_loss(model, batch, tch, cfg)
             opt = torch.optim.Adam(model.parameters(), lr=1e-4)
-            scaler = torch.amp.GradScaler("cuda", enabled=amp and device.type == "cuda")
+            scaler = grad_scaler(device, amp)
             _, logs = train_step(model, opt, batch, tch, cfg, scaler)
             losses[amp] = float(loss)
             checks.add(f"depth step {variant} {'amp' if amp else 'fp32'}", finite(logs), total=logs["total"])
@@ -197,7 +198,7 @@ def check_flow_steps(checks: Checks, ds: FlowPairs, device: torch.device, batch_
             torch.manual_seed(0)
             model = PWCLite().to(device).train()
             batch = flow_batch(ds, batch_size, cfg)
-            with torch.no_grad(), ft.autocast(device, amp):
+            with torch.no_grad(), autocast(device, amp):
                 fw, bw = model(batch["net1"].to(device), batch["net2"].to(device), with_backward=True)
             loss, _ = ft.batch_loss([f.float() for f in fw], [f.float() for f in bw],
                                     batch["img1"].to(device), batch["img2"].to(device),
@@ -288,7 +289,7 @@ def measure_depth(ds: TupleDataset, device: torch.device, args: argparse.Namespa
         net = torch.compile(model) if args.compile else model
         opt = torch.optim.Adam(model.parameters(), lr=1e-4)
         cfg = StepConfig(LossWeights(), scaled_min_area(h, w), amp=amp)
-        scaler = torch.amp.GradScaler("cuda", enabled=amp and device.type == "cuda")
+        scaler = grad_scaler(device, amp)
         reset_peak(device)
         step = timed(partial(train_step, net, opt, batch, teacher, cfg, scaler), device, args.repeats,
                      args.warmup)
@@ -439,7 +440,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     device = torch.device(P.resolve_device(args.device))
     args.out = args.out.resolve()
-    os.chdir(args.params.resolve().parent)  # params' relative paths (configs/ablation_off.yaml) are from there
+    os.chdir(args.params.resolve().parent)  # relative paths in params (configs/ablation_off.yaml) start here
     params = P.load(args.params.name)
     params["allow_random_init"] = True  # random weights: speed and correctness do not need the real ones
     params["train_depth"]["imagenet_weights"] = None

@@ -1,15 +1,16 @@
 """DVC stage `flow_finetune`: PWC-Lite fine-tuned on the prepared pairs (t, t+1) with F²Depth's patch
-census loss (`patch`) or ARFlow's all-pixel census loss (`full`, Table 6).
+census loss (`patch`, computed over `w_scales` and both directions with `backward`, as ARFlow computes its
+loss) or ARFlow's own all-pixel loss (`full`, ARFlow's sintel_ft settings; Table 6).
 
 Usage: python stages/flow_finetune.py --loss {patch,full} [--params params.yaml]
 
 Starts from `flow_finetune.pretrained`, trains on the pairs of every scene except the last
 `holdout_scenes` scenes with ground truth, and scores EPE (all / non-occluded / low-texture) on the
 held-out pairs after every epoch. Writes `flow_finetune.model` (with {loss}), `<out_dir>/<loss>/history.csv`
-(DVC plots), `<out_dir>/<loss>.json` (EPE of the pretrained and the fine-tuned model on the held-out
-test pairs and on up to `eval_train_pairs` training pairs, with the magnitude ratio Σ|flow|/Σ|gt| and
-the mean cosine to the true flow, zero-flow baseline, seconds) and mirrors it
-to MLflow. The training state goes to `<resume_dir>/<loss>.pt` after every epoch and is removed at the end.
+(DVC plots), `<out_dir>/<loss>.json` (the loss settings used, EPE of the pretrained and the fine-tuned
+model on the held-out test pairs and on up to `eval_train_pairs` training pairs, with the magnitude ratio
+Σ|flow|/Σ|gt| and the mean cosine to the true flow, zero-flow baseline, seconds) and mirrors it to MLflow.
+The training state goes to `<resume_dir>/<loss>.pt` after every epoch and is removed at the end.
 """
 
 from __future__ import annotations
@@ -29,11 +30,18 @@ from f2depth import tracking
 from f2depth.data.prepared import PreparedSet
 from f2depth.eval.tables import format_value as fmt
 from f2depth.flow.checkpoint import load_flow_model, save_flow_model
-from f2depth.flow.finetune import HISTORY_COLUMNS, FinetuneConfig, evaluate_epe, finetune, zero_flow_epe
+from f2depth.flow.finetune import (
+    HISTORY_COLUMNS,
+    LOSSES,
+    FinetuneConfig,
+    evaluate_epe,
+    finetune,
+    zero_flow_epe,
+)
 from f2depth.flow.finetune_data import FlowPairs, gt_pairs, split_pairs
-from f2depth.flow.patch_loss import PIXEL_SETS
 from f2depth.io import write_json, write_text
 from f2depth.keypoints.store import KeypointFile
+from f2depth.stage import run_stage
 
 EPE_KEYS = ("epe_all", "epe_noc", "epe_low_texture", "epe_occ", "magnitude_ratio", "cosine", "pairs")
 
@@ -61,17 +69,27 @@ def _epe(d: dict) -> dict:
 
 def main(argv: list[str]) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--loss", choices=PIXEL_SETS, default="patch")
+    ap.add_argument("--loss", choices=LOSSES, default="patch")
     ap.add_argument("--params", default=str(P.DEFAULT_PARAMS))
     args = ap.parse_args(argv[1:])
     p = P.load(args.params)
+    P.pretrained_starts(p, ("flow_pretrain.checkpoint",))  # the paper starts from ARFlow's Sintel model
     s, loss = "flow_finetune.", args.loss
     device = P.resolve_device(str(P.get(p, "device", "auto")))
+    w_scales = P.get(p, s + "w_scales")
+    if (not isinstance(w_scales, list) or not w_scales
+            or not all(isinstance(w, (int, float)) for w in w_scales)
+            or min(w_scales) < 0 or max(w_scales) <= 0):
+        raise P.ParamsError(f"{p['_file']}: flow_finetune.w_scales must be a list of non-negative weights "
+                            "per flow level, finest first, at least one positive (ARFlow: [1, 1, 1, 1, 0]); "
+                            f"got {w_scales!r}")
     cfg = FinetuneConfig(loss=loss, epochs=int(P.get(p, s + "epochs")),
                          batch_size=int(P.get(p, s + "batch_size")), lr=float(P.get(p, s + "lr")),
                          patch_spacing=int(P.get(p, s + "patch_spacing")),
+                         w_scales=tuple(float(w) for w in w_scales), backward=bool(P.get(p, s + "backward")),
                          smooth_weight=float(P.get(p, "lambda_flow_smooth")),
-                         augment=bool(P.get(p, s + "augment")), seed=int(P.get(p, "seed")),
+                         augment=bool(P.get(p, s + "augment")), amp=bool(P.get(p, s + "amp")),
+                         seed=int(P.get(p, "seed")),
                          occlusion=str(P.get(p, s + "occlusion", "forward_backward")))
     ds = PreparedSet(P.get(p, "data.prepared"))
     kp_path = Path(P.get(p, "data.keypoints")) / "train.npz"
@@ -110,9 +128,10 @@ def main(argv: list[str]) -> None:
                                 "seed": cfg.seed})
         after = {"test": _epe(evaluate_epe(model, test, device)),
                  "train": _epe(evaluate_epe(model, gt_pairs(ds, split.train, train_limit), device))}
-        metrics = {"loss": loss, "ground_truth": bool(test), "test_scenes": split.test_scenes,
-                   "test_on_train": split.test_on_train, "train_pairs": len(split.train),
-                   "test_pairs": len(split.test), "pretrained": before, "finetuned": after,
+        metrics = {"loss": loss, "loss_settings": cfg.loss_settings(), "ground_truth": bool(test),
+                   "test_scenes": split.test_scenes, "test_on_train": split.test_on_train,
+                   "train_pairs": len(split.train), "test_pairs": len(split.test), "pretrained": before,
+                   "finetuned": after,
                    "zero_flow": {"test": _epe(zero_flow_epe(test))}, "epochs": cfg.epochs,
                    "epochs_run": info["epochs_run"], "resumed_from": info["resumed_from"],
                    "seconds": round(time.perf_counter() - t0, 1)}
@@ -130,6 +149,5 @@ def main(argv: list[str]) -> None:
           f"{metrics['seconds']} s → {model_path}")
 
 
-
 if __name__ == "__main__":
-    main(sys.argv)
+    run_stage("flow_finetune", main, sys.argv)

@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 import torch.nn.functional as F
 
+from f2depth.flow.finetune import FinetuneConfig, batch_loss
 from f2depth.flow.loss import (
     SINTEL_FT,
     SINTEL_RAW,
@@ -15,11 +18,14 @@ from f2depth.flow.loss import (
     flow_loss,
     non_occluded_by_consistency,
     non_occluded_by_range,
+    non_occluded_masks,
     range_map,
     smoothness,
     ssim_loss,
 )
 from f2depth.flow.warp import warp
+
+REF = Path(__file__).resolve().parents[2] / "shared" / "data" / "arflow_reference" / "arflow_loss_seed0.npz"
 
 
 def _image(seed: int, hw=(64, 96)) -> torch.Tensor:
@@ -162,3 +168,50 @@ def test_photometric_term_uses_warp_of_frame2():
     l1 = ((img1 - warp(img2, flow)).abs() * noc1).mean() / noc1.mean()
     l2 = ((img2 - warp(img1, -flow)).abs() * noc2).mean() / noc2.mean()
     assert float(loss) == pytest.approx(float((l1 + l2) / 2), rel=1e-5)
+
+
+def _reference(case: str):
+    """ARFlow's own loss values (``arflow_loss_seed0.npz``, float64): images and the two flow pyramids."""
+    ref = np.load(REF)
+    x = torch.from_numpy(ref["input"]).double()
+    flows = [torch.from_numpy(ref[f"flows_{case}_{i}"]).double() for i in range(5)]
+    return ref, x[:, :3], x[:, 3:], [f[:, :2] for f in flows], [f[:, 2:] for f in flows]
+
+
+@pytest.mark.parametrize("case", ["smooth", "model"])
+def test_sintel_raw_equals_arflows_own_loss(case):
+    """The pretraining setting: total, photometric sum over scales and λ·smoothness to 1e-6, same masks."""
+    ref, img1, img2, fw, bw = _reference(case)
+    loss, stats = flow_loss(fw, bw, img1, img2, SINTEL_RAW)
+    assert float(loss) == pytest.approx(float(ref[f"sintel_raw_{case}_total"]), abs=1e-6)
+    assert stats["photometric"] == pytest.approx(float(ref[f"sintel_raw_{case}_warp"]), abs=1e-6)
+    assert 50 * stats["smooth"] == pytest.approx(float(ref[f"sintel_raw_{case}_smooth"]), abs=1e-6)
+    for cfg, name in ((SINTEL_RAW, "sintel_raw"), (SINTEL_FT, "sintel_ft")):
+        noc1, noc2 = non_occluded_masks(fw[0], bw[0], cfg)
+        assert np.array_equal(noc1.numpy(), ref[f"{name}_{case}_occ_mask1_0"].reshape(noc1.shape))
+        assert np.array_equal(noc2.numpy(), ref[f"{name}_{case}_occ_mask2_0"].reshape(noc2.shape))
+
+
+def test_full_finetune_loss_is_arflows_sintel_ft():
+    """Table 6's `full` variant, through the fine-tuning code path (``finetune.batch_loss``), is ARFlow's own
+    ``sintel_ft`` loss: equal to ARFlow's values to 1e-6 where they are finite. On the random model's flows
+    the forward–backward check marks every pixel occluded and ARFlow returns NaN (0/0); ours returns the
+    smoothness term alone (photometric exactly 0), which equals ARFlow's finite smoothness value."""
+    cfg = FinetuneConfig(loss="full", occlusion="forward_backward", smooth_weight=50.0)
+    ref, img1, img2, fw, bw = _reference("smooth")
+    loss, stats = batch_loss(fw, bw, img1, img2, None, None, cfg)
+    assert float(loss) == pytest.approx(float(ref["sintel_ft_smooth_total"]), abs=1e-6)
+    assert stats["photometric"] == pytest.approx(float(ref["sintel_ft_smooth_warp"]), abs=1e-6)
+    assert 50 * stats["smooth"] == pytest.approx(float(ref["sintel_ft_smooth_smooth"]), abs=1e-6)
+    assert stats["coverage"] == 1.0 and 0.9 < stats["noc_fraction"] < 1.0
+    ref, img1, img2, fw, bw = _reference("model")
+    assert math.isnan(float(ref["sintel_ft_model_total"])) and math.isnan(float(ref["sintel_ft_model_warp"]))
+    loss, stats = batch_loss(fw, bw, img1, img2, None, None, cfg)
+    assert math.isfinite(float(loss)) and stats["photometric"] == 0.0 and stats["noc_fraction"] == 0.0
+    assert float(loss) == pytest.approx(float(ref["sintel_ft_model_smooth"]), abs=1e-6)
+    # the CPU default's range map (ARFlow's warm-up check) keeps the photometric term of such flows alive
+    loss_rm, stats_rm = batch_loss(fw, bw, img1, img2, None, None,
+                                   FinetuneConfig(loss="full", occlusion="range_map", smooth_weight=50.0))
+    assert stats_rm["photometric"] > 0 and stats_rm["noc_fraction"] > 0
+    expect, _ = flow_loss(fw, bw, img1, img2, SINTEL_FT.with_changes(occ_from_back=True))
+    assert float(loss_rm) == float(expect)

@@ -15,6 +15,7 @@ from f2depth.depth import DepthModel, DepthModelConfig
 from f2depth.flow import PWCLite
 from f2depth.geometry import in_view_mask, relative_pose, rigid_flow, warp
 from f2depth.losses import LossWeights, NonFiniteLossError, rigid_flow_loss, total_loss
+from f2depth.precision import amp_dtype
 from f2depth.synth.camera_path import handheld_path
 from f2depth.synth.groundtruth import occlusion
 from f2depth.synth.groundtruth import relative_pose as synth_relative_pose
@@ -27,7 +28,6 @@ from f2depth.train.data import DataConfig, TupleDataset
 from f2depth.train.step import (
     NetOutput,
     StepConfig,
-    amp_dtype,
     compute_loss,
     loss_terms,
     network_forward,

@@ -1,17 +1,28 @@
-"""Fine-tuning PWC-Lite on the prepared indoor pairs with F²Depth's patch loss or the all-pixel census loss
-(paper §3.1 and §4.1; SPEC §4.3), resumable, with per-epoch EPE on synthetic ground truth.
+"""Fine-tuning PWC-Lite on the prepared indoor pairs with F²Depth's patch loss or ARFlow's own loss
+(paper §3.1 and §4.1; Table 6), resumable, with per-epoch EPE on synthetic ground truth.
 
-Per step: a batch of pairs (t, t+1) with the keypoints of t is flipped and colour-jittered
+Per step: a batch of pairs (t, t+1) with the keypoints of both frames is flipped and colour-jittered
 (:mod:`f2depth.flow.augment`; the network sees the jittered frames, the loss the un-jittered ones), the
-network predicts both directions, and :func:`f2depth.flow.patch_loss.finetune_loss` gives L_flow. Adam with
-ARFlow's settings (betas 0.9/0.999, eps 1e-7, weight decay 1e-6 on weights, none on biases) and a
-constant learning rate (paper: 5e-5, 37 epochs, batch 20). A step with a non-finite loss is skipped.
+network predicts both directions at all five levels, and :func:`batch_loss` gives L_flow:
 
-**Resuming.** After every epoch the model, the optimiser, the epoch and the history are written
-atomically to ``resume_path`` together with a fingerprint (configuration, training pairs and whatever
-the caller adds, e.g. hashes of the pretrained model and the keypoints). A run whose fingerprint matches
-continues after the last finished epoch, so a crash loses at most the epoch in progress; shuffling and
-augmentation of epoch e come from a generator seeded by (seed, e), so a resumed run ends with the same
+* ``patch`` — :func:`f2depth.flow.patch_loss.finetune_loss` with the ``w_scales`` / ``backward`` settings
+  (ARFlow's: four scales, both directions, smoothness on the finest level);
+* ``full`` — ARFlow's own unsupervised loss, :func:`f2depth.flow.loss.flow_loss` with ``SINTEL_FT``
+  (census over every non-occluded pixel, four scales, both directions), λ = ``smooth_weight`` and the range
+  map instead of the forward–backward check when ``occlusion`` is ``range_map``.
+
+Adam with ARFlow's settings (betas 0.9/0.999, eps 1e-7, weight decay 1e-6 on weights, none on biases) and
+a constant learning rate (paper: 5e-5, 37 epochs, batch 20). A step with a non-finite loss is skipped.
+
+**Mixed precision** (``amp``, off by default and in the ``paper`` profile: ARFlow trains in float32): the
+network runs under ``torch.autocast`` (CUDA float16, CPU bfloat16) and the loss in float32 with autocast
+off; on CUDA a GradScaler scales the loss.
+
+**Resuming.** After every epoch the model, the optimiser, the grad scaler, the epoch and the history are
+written atomically to ``resume_path`` together with a fingerprint (configuration, training pairs and
+whatever the caller adds, e.g. hashes of the pretrained model and the keypoints). A run whose fingerprint
+matches continues after the last finished epoch, so a crash loses at most the epoch in progress; shuffling
+and augmentation of epoch e come from a generator seeded by (seed, e), so a resumed run ends with the same
 weights as an uninterrupted one. Any other state file is ignored and overwritten.
 """
 
@@ -21,7 +32,7 @@ import math
 import os
 import time
 import warnings
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -32,12 +43,15 @@ from tqdm import tqdm
 from f2depth.flow.augment import augment_batch
 from f2depth.flow.evaluation import EPEAccumulator
 from f2depth.flow.finetune_data import FlowPairs, GTPair, collate
+from f2depth.flow.loss import SINTEL_FT, FlowLossConfig, flow_loss
 from f2depth.flow.patch_loss import FinetuneLossConfig, finetune_loss
 from f2depth.flow.pwclite import PWCLite
 from f2depth.io import torch_save
+from f2depth.precision import autocast, full_precision, grad_scaler
 
+LOSSES = ("patch", "full")
 RESUME_FORMAT = "f2depth.flow_finetune_resume"
-RESUME_VERSION = 1
+RESUME_VERSION = 2
 TRAIN_COLUMNS = ("loss", "photometric", "smooth", "used_pixels", "coverage", "noc_fraction")
 EPE_COLUMNS = ("epe_all", "epe_noc", "epe_low_texture")
 HISTORY_COLUMNS = ("epoch", *TRAIN_COLUMNS, "steps", "skipped_steps", *EPE_COLUMNS, "seconds")
@@ -50,15 +64,69 @@ class FinetuneConfig:
     batch_size: int = 4
     lr: float = 5e-5
     patch_spacing: int = 2
+    w_scales: tuple[float, ...] = (1.0,)  # patch: weight per level, finest first (ARFlow: 1, 1, 1, 1, 0)
+    backward: bool = False            # patch: also the backward term (ARFlow's with_bk)
     smooth_weight: float = 50.0       # lambda_flow_smooth
     occlusion: str = "forward_backward"  # the paper's check; "range_map" for a degenerate pretrained flow
     augment: bool = True
+    amp: bool = False                 # autocast the network (CUDA float16, CPU bfloat16)
     weight_decay: float = 1e-6
     seed: int = 0
 
-    def loss_config(self) -> FinetuneLossConfig:
-        return FinetuneLossConfig(pixels=self.loss, spacing=self.patch_spacing,
+    def __post_init__(self) -> None:
+        if self.loss not in LOSSES:
+            raise ValueError(f"FinetuneConfig.loss must be one of {LOSSES}, got {self.loss!r}")
+        if not isinstance(self.w_scales, tuple):
+            raise TypeError(f"FinetuneConfig.w_scales must be a tuple, got {type(self.w_scales).__name__}")
+
+    def patch_loss_config(self) -> FinetuneLossConfig:
+        return FinetuneLossConfig(spacing=self.patch_spacing, w_scales=self.w_scales, backward=self.backward,
                                   smooth_weight=self.smooth_weight, occlusion=self.occlusion)
+
+    def full_loss_config(self) -> FlowLossConfig:
+        """ARFlow's ``sintel_ft`` loss with our λ and occlusion choice (range map = ARFlow's warm-up)."""
+        return SINTEL_FT.with_changes(w_smooth=self.smooth_weight,
+                                      occ_from_back=self.occlusion == "range_map")
+
+    def loss_settings(self) -> dict[str, Any]:
+        """What the loss computed, for the metrics file."""
+        if self.loss == "full":
+            c = self.full_loss_config()
+            return {"loss": "full", "function": "f2depth.flow.loss.flow_loss", "setting": "sintel_ft",
+                    "w_ternary": c.w_ternary, "w_l1": c.w_l1, "w_ssim": c.w_ssim,
+                    "w_scales": list(c.w_scales),
+                    "w_sm_scales": list(c.w_sm_scales), "backward": True, "smooth_weight": c.w_smooth,
+                    "occlusion": "range_map" if c.occ_from_back else "forward_backward", "amp": self.amp}
+        c = self.patch_loss_config()
+        return {"loss": "patch", "function": "f2depth.flow.patch_loss.finetune_loss",
+                "patch_spacing": c.spacing, "w_scales": list(c.w_scales), "w_sm_scales": [1.0],
+                "backward": c.backward, "smooth_weight": c.smooth_weight, "occlusion": c.occlusion,
+                "amp": self.amp}
+
+
+def batch_loss(flows_fw: Sequence[torch.Tensor], flows_bw: Sequence[torch.Tensor], img1: torch.Tensor,
+               img2: torch.Tensor, keypoints: torch.Tensor | None, keypoint_mask: torch.Tensor | None,
+               cfg: FinetuneConfig) -> tuple[torch.Tensor, dict[str, float]]:
+    """L_flow of one batch for ``cfg.loss`` → ``(loss, stats)`` with every :data:`TRAIN_COLUMNS` key.
+
+    ``flows_fw, flows_bw``: PWC-Lite's five levels, finest first, in pixels of their level; ``img1, img2
+    (B,3,H,W)`` in [0,1]; ``keypoints (B,2,K,2)`` / ``keypoint_mask (B,2,K)`` of frames 1 and 2 (patch only;
+    ignored by ``full``). For ``full`` (every pixel), ``coverage`` is 1 and ``used_pixels`` is frame 1's
+    non-occluded share of the image in pixels.
+    """
+    if cfg.loss == "full":
+        loss, stats = flow_loss(list(flows_fw), list(flows_bw), img1, img2, cfg.full_loss_config())
+        h, w = img1.shape[-2:]
+        stats.update(used_pixels=stats["noc_fraction"] * h * w, coverage=1.0, pixels=float(h * w))
+        return loss, stats
+    if keypoints is None or keypoint_mask is None:
+        raise ValueError("batch_loss: the patch loss needs keypoints and keypoint_mask")
+    return finetune_loss(flows_fw, flows_bw, img1, img2, keypoints, keypoint_mask, cfg.patch_loss_config())
+
+
+def make_scaler(device: torch.device | str, cfg: FinetuneConfig) -> torch.amp.GradScaler:
+    """GradScaler for float16 on CUDA; a disabled (pass-through) one otherwise."""
+    return grad_scaler(device, cfg.amp)
 
 
 def make_optimizer(model: torch.nn.Module, cfg: FinetuneConfig) -> torch.optim.Optimizer:
@@ -100,34 +168,58 @@ def epoch_generator(seed: int, epoch: int) -> torch.Generator:
     return torch.Generator().manual_seed(seed * 1_000_003 + epoch)
 
 
+def prepare_batch(batch: dict[str, torch.Tensor], cfg: FinetuneConfig, gen: torch.Generator
+                  ) -> dict[str, torch.Tensor]:
+    """Augmented batch (``cfg.augment``) with ``net1``, ``net2`` = what the network sees."""
+    if cfg.augment:
+        return augment_batch(batch, gen)
+    return {**batch, "net1": batch["img1"], "net2": batch["img2"]}
+
+
+def train_step(model: PWCLite, optimizer: torch.optim.Optimizer, batch: dict[str, torch.Tensor],
+               cfg: FinetuneConfig, device: torch.device | str = "cpu",
+               scaler: torch.amp.GradScaler | None = None) -> dict[str, float] | None:
+    """One update on a prepared batch (:func:`prepare_batch`) → its loss terms, or None when the loss was
+    not finite (no update). The network runs under :func:`autocast` with ``cfg.amp``, the loss in float32."""
+    img1, img2 = batch["img1"].to(device), batch["img2"].to(device)
+    with autocast(device, cfg.amp):
+        flows_fw, flows_bw = model(batch["net1"].to(device), batch["net2"].to(device), with_backward=True)
+    if cfg.amp:
+        flows_fw, flows_bw = [f.float() for f in flows_fw], [f.float() for f in flows_bw]
+    with full_precision(device):
+        loss, stats = batch_loss(flows_fw, flows_bw, img1, img2, batch.get("keypoints"),
+                                 batch.get("keypoint_mask"), cfg)
+    optimizer.zero_grad(set_to_none=True)
+    if not torch.isfinite(loss):
+        return None
+    if scaler is not None:
+        scaler.scale(loss).backward()
+        scaler.step(optimizer)
+        scaler.update()
+    else:
+        loss.backward()
+        optimizer.step()
+    return stats
+
+
 def train_epoch(model: PWCLite, dataset: FlowPairs, cfg: FinetuneConfig, optimizer: torch.optim.Optimizer,
-                epoch: int, device: str = "cpu", workers: int = 0, progress: bool = True) -> dict[str, float]:
+                epoch: int, device: str = "cpu", workers: int = 0, progress: bool = True,
+                scaler: torch.amp.GradScaler | None = None) -> dict[str, float]:
     """One pass over ``dataset`` in the order and with the augmentation of ``epoch``; mean loss terms."""
     gen = epoch_generator(cfg.seed, epoch)
     order = torch.randperm(len(dataset), generator=gen).tolist()
     loader = torch.utils.data.DataLoader(dataset, batch_size=cfg.batch_size, sampler=order,
                                          collate_fn=collate, num_workers=workers)
-    loss_cfg = cfg.loss_config()
     model.train()
     sums = dict.fromkeys(TRAIN_COLUMNS, 0.0)
     steps = skipped = 0
     bar = tqdm(loader, desc=f"flow_finetune[{cfg.loss}] {epoch + 1}/{cfg.epochs}", disable=not progress,
                leave=False)
     for batch in bar:
-        if cfg.augment:
-            batch = augment_batch(batch, gen)
-        else:
-            batch = {**batch, "net1": batch["img1"], "net2": batch["img2"]}
-        img1, img2 = batch["img1"].to(device), batch["img2"].to(device)
-        flows_fw, flows_bw = model(batch["net1"].to(device), batch["net2"].to(device), with_backward=True)
-        loss, stats = finetune_loss(flows_fw[0], flows_bw[0], img1, img2, batch["keypoints"],
-                                    batch["keypoint_mask"], loss_cfg)
-        optimizer.zero_grad(set_to_none=True)
-        if not torch.isfinite(loss):
+        stats = train_step(model, optimizer, prepare_batch(batch, cfg, gen), cfg, device, scaler)
+        if stats is None:
             skipped += 1
             continue
-        loss.backward()
-        optimizer.step()
         steps += 1
         for k in TRAIN_COLUMNS:
             sums[k] += stats[k]
@@ -165,6 +257,7 @@ def finetune(model: PWCLite, dataset: FlowPairs, cfg: FinetuneConfig, eval_pairs
     eval_pairs = list(eval_pairs)
     model.to(device)
     optimizer = make_optimizer(model, cfg)
+    scaler = make_scaler(device, cfg)
     full_fp = {"config": asdict(cfg), "pairs": [p.pair_id for p in dataset.pairs], **dict(fingerprint or {})}
     resume = Path(resume_path) if resume_path is not None else None
     state = _load_resume(resume, full_fp) if resume is not None else None
@@ -172,12 +265,14 @@ def finetune(model: PWCLite, dataset: FlowPairs, cfg: FinetuneConfig, eval_pairs
     if state is not None:
         model.load_state_dict(state["model"])
         optimizer.load_state_dict(state["optimizer"])
+        if state["scaler"]:
+            scaler.load_state_dict(state["scaler"])
         start, history = int(state["epoch"]), [dict(r) for r in state["history"]]
     t0 = time.perf_counter()
     for epoch in range(start, cfg.epochs):
         t_epoch = time.perf_counter()
         row: dict[str, Any] = {"epoch": epoch + 1}
-        row.update(train_epoch(model, dataset, cfg, optimizer, epoch, device, workers, progress))
+        row.update(train_epoch(model, dataset, cfg, optimizer, epoch, device, workers, progress, scaler))
         if not all(math.isfinite(row[k]) for k in TRAIN_COLUMNS):
             raise FloatingPointError(f"flow_finetune[{cfg.loss}]: non-finite epoch statistics {row}")
         if row["steps"] and row["noc_fraction"] == 0:
@@ -193,7 +288,7 @@ def finetune(model: PWCLite, dataset: FlowPairs, cfg: FinetuneConfig, eval_pairs
             torch_save(resume, {"format": RESUME_FORMAT, "version": RESUME_VERSION, "fingerprint": full_fp,
                                 "epoch": epoch + 1, "history": history,
                                 "model": {k: v.detach().cpu() for k, v in model.state_dict().items()},
-                                "optimizer": optimizer.state_dict()})
+                                "optimizer": optimizer.state_dict(), "scaler": scaler.state_dict()})
         if on_epoch is not None:
             on_epoch(epoch + 1, row, history)
     model.eval()

@@ -1,5 +1,6 @@
-"""Data of the flow fine-tuning: the prepared pairs (t, t+1) with the keypoints of t, the split into
-training and EPE test pairs, and ground-truth flow of prepared pairs from synthetic depth and pose.
+"""Data of the flow fine-tuning: the prepared pairs (t, t+1) with the keypoints of both frames (t's for the
+forward term of the patch loss, t+1's for the backward term), the split into training and EPE test pairs,
+and ground-truth flow of prepared pairs from synthetic depth and pose.
 
 **Split.** The last ``holdout_scenes`` scenes of ``pairs.csv`` whose pairs have ground truth are the EPE
 test scenes; their pairs are not trained on. If that would leave no training scene, every pair is
@@ -66,12 +67,14 @@ def split_pairs(ds: PreparedSet, holdout_scenes: int) -> PairSplit:
 
 
 class FlowPairs(torch.utils.data.Dataset):
-    """Prepared pairs → ``{"img1", "img2" (3,H,W) in [0,1], "keypoints" (n,2) int64 of frame 1}``."""
+    """Prepared pairs → ``{"img1", "img2" (3,H,W) in [0,1], "keypoints1", "keypoints2" (n,2) int64}``
+    (the DSO keypoints of frame 1 and of frame 2; empty without a keypoint file)."""
 
     def __init__(self, ds: PreparedSet, pairs: list[PairRecord], keypoints: KeypointFile | None = None):
         self.ds, self.pairs, self.keypoints = ds, list(pairs), keypoints
         if keypoints is not None:
-            missing = [p.frame1 for p in self.pairs if ds.frame_index(p.frame1) not in keypoints]
+            frames = dict.fromkeys(f for p in self.pairs for f in (p.frame1, p.frame2))
+            missing = [f for f in frames if ds.frame_index(f) not in keypoints]
             if missing:
                 raise KeyError(f"{keypoints.path}: no keypoints for {len(missing)} prepared frame(s) such as "
                                f"{missing[0]}; re-run `dvc repro keypoints`")
@@ -79,19 +82,26 @@ class FlowPairs(torch.utils.data.Dataset):
     def __len__(self) -> int:
         return len(self.pairs)
 
+    def _keypoints(self, frame: str) -> torch.Tensor:
+        if self.keypoints is None:
+            return torch.zeros(0, 2, dtype=torch.int64)
+        return self.keypoints.tensor(self.ds.frame_index(frame))[:, :2]
+
     def __getitem__(self, i: int) -> dict[str, torch.Tensor]:
         p = self.pairs[i]
-        kp = (self.keypoints.tensor(self.ds.frame_index(p.frame1))[:, :2] if self.keypoints is not None
-              else torch.zeros(0, 2, dtype=torch.int64))
         return {"img1": to_tensor(self.ds.image(p.frame1)), "img2": to_tensor(self.ds.image(p.frame2)),
-                "keypoints": kp}
+                "keypoints1": self._keypoints(p.frame1), "keypoints2": self._keypoints(p.frame2)}
 
 
 def collate(items: list[dict[str, torch.Tensor]]) -> dict[str, torch.Tensor]:
-    """Stack images; pad keypoints → ``keypoints (B,K,2)``, ``keypoint_mask (B,K)``."""
-    kp, mask = pad_keypoints([it["keypoints"] for it in items])
+    """Stack images; pad keypoints → ``keypoints (B,2,K,2)`` and ``keypoint_mask (B,2,K)``, index 0 = frame 1,
+    1 = frame 2 (one tensor, so that a flip mirrors both frames' keypoints together)."""
+    b = len(items)
+    kp, mask = pad_keypoints([it["keypoints1"] for it in items] + [it["keypoints2"] for it in items])
     return {"img1": torch.stack([it["img1"] for it in items]),
-            "img2": torch.stack([it["img2"] for it in items]), "keypoints": kp, "keypoint_mask": mask}
+            "img2": torch.stack([it["img2"] for it in items]),
+            "keypoints": kp.view(2, b, -1, 2).transpose(0, 1).contiguous(),
+            "keypoint_mask": mask.view(2, b, -1).transpose(0, 1).contiguous()}
 
 
 def true_intrinsics(ds: PreparedSet) -> np.ndarray:

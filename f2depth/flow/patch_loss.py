@@ -1,41 +1,57 @@
-"""F²Depth's flow fine-tuning loss (paper §3.1, SPEC §4.3): census distance at the pixels of 3×3 patches
-around the target's DSO keypoints (``patch``) or at every pixel (``full``, for Table 6), plus ARFlow's
-first-order edge-aware smoothness.
+"""F²Depth's patch-based photometric loss for flow fine-tuning (the paper §3.1), computed the way ARFlow
+computes its own loss (ARFlow §3: the paper takes λ = 50 from ARFlow, whose photometric term is summed over
+output scales and both flow directions).
 
-For the forward flow ``f = f(t→s)`` of a target/source pair and a set of target pixels ``S``::
+For PWC-Lite's flows of a pair (frame 1 = target t, frame 2 = source s), five levels each, finest first,
+level i in pixels of its own grid, and with ``backward`` (ARFlow's ``with_bk``)::
 
-    L_flow = Σ_{p∈S'} D(p) / |S'| + λ · L_sm(f),     S' = {p ∈ S : p not occluded, 1 ≤ x ≤ W−2, 1 ≤ y ≤ H−2}
+    L_flow = Σ_i w_i · (P_i(f_t→s; t, s, S_t) + P_i(f_s→t; s, t, S_s)) / 2
+             + λ · (L_sm(f_t→s, I_t) + L_sm(f_s→t, I_s)) / 2
 
-``patch``: ``S = ∪_k {(x_k + i, y_k + j) : i, j ∈ {−N, 0, N}}`` over the keypoints of the target (N =
-``spacing``, 2 in the paper). ``full``: every pixel. Occlusion is ARFlow's forward–backward check on the
-detached flows (``|f + f_bw(p + f)|² > 0.01·(|f|² + |f_bw(p + f)|²) + 0.5``). ``λ·L_sm`` is ARFlow's
-``smooth_grad_1st`` of ``f / min(H, W)`` weighted by ``exp(−10·|∂I_t|)``, as in ARFlow's loss.
+without ``backward``: ``L_flow = Σ_i w_i · P_i(f_t→s; t, s, S_t) + λ · L_sm(f_t→s, I_t)`` — with
+``w_scales = (1,)`` exactly the paper's equation ``L_patch(f_t→s) + λ·L_sm(f_t→s)`` on the finest flow.
+ARFlow's values (params.yaml, ``paper`` profile): ``w_scales (1, 1, 1, 1, 0)``, ``backward`` true.
+
+``P_i(f; a, b, S_a)`` = mean over the usable pixels ``S'_i`` of ARFlow's ternary census distance between
+frame a's 3×3 window at p and frame b's at ``p + f(p)``, on the level-i images (area-resized from the
+input, as ARFlow does). ``S_a`` = the patch pixels ``{(x + i, y + j) : i, j ∈ {−N, 0, N}}`` around the
+DSO keypoints **of frame a** (the target's keypoints for the forward term, the source's for the backward
+term); ``S'_i`` = those pixels mapped to level i, minus occluded pixels and the level's one-pixel border.
+``L_sm`` = ARFlow's first-order edge-aware smoothness of ``f / min(H, W)`` weighted by
+``exp(−10·|∂I|)``, on the finest level only (ARFlow's ``w_sm_scales (1, 0, 0, 0, 0)``).
 
 Decisions (documented because the paper leaves them open):
 
-* **Each pixel counts once.** ``S`` is a *set*: a pixel covered by several (overlapping or duplicate)
-  patches enters the average once, exactly as multiplying ARFlow's occlusion mask by a binary patch mask
-  would. Duplicate keypoints (frequent at small sizes, docs/keypoints.md) therefore do not weigh double.
-* **The average runs over the whole batch** (ARFlow divides the masked sum by the mask's mean over the
-  batch): images with more usable patch pixels weigh more; an image without keypoints, or whose patch
-  pixels are all occluded, adds nothing. With no usable pixel at all the photometric term is exactly 0.
-* **Census window moves with the pixel's own flow.** ``D(p)`` is ARFlow's ternary census distance
-  (research/arflow.md §4: grey ``255·(0.2989, 0.587, 0.114)``, 3×3 window incl. the centre,
-  ``t = Δ/√(0.81 + Δ²)``, ``d = (t_t − t_s)²``, ``mean d/(0.1 + d)``) between the target's window at ``p``
-  and the source's window at ``p + f(p)``: the source grey image is sampled bilinearly (border padding,
-  align_corners=True) at ``p + o + f(p)`` for the 9 offsets ``o``. ARFlow instead warps the whole source
-  first, so its window uses the neighbours' flows ``f(p + o)``; both agree wherever the flow is constant
-  over the 3×3 window, and this form makes the loss depend on the flow **only at the pixels of S**
-  (the paper's "only patch pixels are used"). It is computed only at the gathered pixels (no dense map):
-  ``9·|S|`` bilinear samples of one grey channel.
-* The one-pixel image border (where ARFlow's census is defined as 0) is left out of ``S`` and of the
-  denominator. Images are not multiplied by the occlusion mask before the census (ARFlow does that); the
-  mask is applied to the distances. ``full`` uses the same code, so the two variants differ only in ``S``.
-* Single scale: the finest (input-resolution) flow only, target → source only (the keypoints belong to
-  the target); the backward flow serves the occlusion check alone.
-* ``occlusion="range_map"`` swaps the forward–backward check for ARFlow's range map (UnOS; research/arflow.md
-  §3.2), which ARFlow uses to warm up because the forward–backward check marks every pixel occluded while
-  the flow is still degenerate (e.g. a constant flow, where forward = backward). Default: the paper's check.
+* **Patches at coarser levels.** Every patch pixel (x, y) inside the input image is mapped to level i
+  (size h_i × w_i) as ``(⌊x·w_i/W⌋, ⌊y·h_i/H⌋)`` = ``(⌊x/2^i⌋, ⌊y/2^i⌋)`` for PWC-Lite's sizes: the
+  level-i pixels whose area-averaged colour contains the patch pixels. The loss thus covers the same image
+  region around the keypoints at every level (no low-texture surroundings are added at coarse levels).
+  Pixels that coincide after the mapping count once, as below.
+* **Each pixel counts once.** ``S`` is a *set* per level: a pixel covered by several (overlapping or
+  duplicate) patches enters the average once, exactly as multiplying ARFlow's occlusion mask by a binary
+  patch mask would. Duplicate keypoints therefore do not weigh double.
+* **Occlusion** is decided on the finest level only (no gradient) and nearest-resized to the coarser
+  levels, as ARFlow does: the forward–backward check (``|f + f_bw(p + f)|² > 0.01·(|f|² + |f_bw(p + f)|²)
+  + 0.5``; frame 1's mask for the forward term, frame 2's for the backward term) or, with
+  ``occlusion="range_map"``, ARFlow's UnOS range map, which ARFlow uses to warm up because the
+  forward–backward check marks every pixel occluded while the flow is still degenerate (e.g. a constant
+  flow, where forward = backward).
+* **The average runs over the whole batch**, per level and direction (ARFlow divides the masked sum by
+  the mask's mean over the batch): images with more usable patch pixels weigh more; an image without
+  keypoints, or whose patch pixels are all occluded, adds nothing. A level and direction without any
+  usable pixel contributes exactly 0 (ARFlow would return 0/0 = NaN).
+* **Census window moves with the pixel's own flow.** The source grey image is sampled bilinearly (border
+  padding, align_corners=True) at ``p + o + f(p)`` for the 9 offsets ``o``. ARFlow instead warps the whole
+  source first, so its window uses the neighbours' flows ``f(p + o)``; both agree wherever the flow is
+  constant over the 3×3 window, and this form makes the loss depend on the flow **only at the pixels of
+  S** (the paper's "only patch pixels are used"). It is computed only at the gathered pixels (no dense
+  map): ``9·|S|`` bilinear samples of one grey channel per level and direction.
+* The one-pixel border of each level (where ARFlow's census is defined as 0) is left out of ``S`` and of
+  the denominator. Images are not multiplied by the occlusion mask before the census (ARFlow does that);
+  the mask is applied to the distances.
+
+The `full` variant of Table 6 is not computed here: it is ARFlow's own loss,
+:func:`f2depth.flow.loss.flow_loss` with ``SINTEL_FT`` (see :mod:`f2depth.flow.finetune`).
 """
 
 from __future__ import annotations
@@ -49,17 +65,18 @@ import torch.nn.functional as F
 from f2depth.flow.census import grey255
 from f2depth.flow.loss import non_occluded_by_consistency, non_occluded_by_range, smoothness
 
-PIXEL_SETS = ("patch", "full")
 OCCLUSION_CHECKS = ("forward_backward", "range_map")
 CENSUS_BORDER = 1
 
 
 @dataclass(frozen=True)
 class FinetuneLossConfig:
-    """``pixels``: ``"patch"`` (F²Depth) or ``"full"`` (ARFlow's all-pixel census); ``spacing`` = N."""
+    """Settings of the patch loss. Defaults = the paper's equation as written (finest forward flow only);
+    ARFlow's way of computing it is ``w_scales=(1, 1, 1, 1, 0), backward=True`` (params.yaml)."""
 
-    pixels: str = "patch"
-    spacing: int = 2
+    spacing: int = 2                  # N
+    w_scales: tuple[float, ...] = (1.0,)  # photometric weight per flow level, finest first; missing = 0
+    backward: bool = False            # also the backward term (ARFlow's with_bk), averaged with the forward
     smooth_weight: float = 50.0       # λ = lambda_flow_smooth
     alpha: float = 10.0               # edge-awareness of the smoothness weights (ARFlow)
     occlusion: str = "forward_backward"  # or "range_map" (ARFlow's warm-up check)
@@ -68,13 +85,14 @@ class FinetuneLossConfig:
     range_threshold: float = 0.2      # range map: occluded where the splatted count is below this
 
     def __post_init__(self) -> None:
-        if self.pixels not in PIXEL_SETS:
-            raise ValueError(f"FinetuneLossConfig.pixels must be one of {PIXEL_SETS}, got {self.pixels!r}")
         if self.occlusion not in OCCLUSION_CHECKS:
             raise ValueError(f"FinetuneLossConfig.occlusion must be one of {OCCLUSION_CHECKS}, "
                              f"got {self.occlusion!r}")
         if self.spacing < 1:
             raise ValueError(f"FinetuneLossConfig.spacing must be >= 1, got {self.spacing}")
+        if not self.w_scales or any(w < 0 for w in self.w_scales) or not any(w > 0 for w in self.w_scales):
+            raise ValueError(f"FinetuneLossConfig.w_scales must be non-negative with one positive weight, "
+                             f"got {self.w_scales}")
 
 
 def patch_offsets(spacing: int = 2) -> torch.Tensor:
@@ -98,36 +116,36 @@ def pad_keypoints(points: Sequence[torch.Tensor]) -> tuple[torch.Tensor, torch.T
 
 
 def patch_pixels(keypoints: torch.Tensor, mask: torch.Tensor, height: int, width: int, spacing: int = 2,
-                 border: int = CENSUS_BORDER) -> tuple[torch.Tensor, torch.Tensor]:
-    """The patch pixel set of every image, as flat indices.
+                 border: int = CENSUS_BORDER, level_hw: tuple[int, int] | None = None
+                 ) -> tuple[torch.Tensor, torch.Tensor]:
+    """The patch pixel set of every image, as flat indices of the level grid.
 
-    ``keypoints (B,K,2)`` integer pixels x first, ``mask (B,K)`` bool → ``idx (B,9K)`` int64 ``y·W + x`` and
-    ``valid (B,9K)`` bool. Each pixel of the union of the patches that lies at least ``border`` pixels
-    inside the image is valid exactly once (duplicates and pixels outside are invalid; their ``idx`` is
-    clamped into the image and must be ignored).
+    ``keypoints (B,K,2)`` integer pixels of the ``height × width`` input image, x first, ``mask (B,K)``
+    bool; ``level_hw`` = ``(h, w)`` of the level (default: the input) → ``idx (B,M)`` int64 ``y·w + x``
+    and ``valid (B,M)`` bool. Patch pixels inside the input image are mapped to ``(⌊x·w/W⌋, ⌊y·h/H⌋)``;
+    each mapped pixel lying at least ``border`` pixels inside the level is valid exactly once. Each row
+    holds its valid pixels first, in ascending order, then padding (invalid, ``idx`` clamped into the
+    level, to be ignored); ``M`` = the largest set of the batch (at least 1, at most 9K), so overlapping
+    patches and coarse levels cost only their distinct pixels.
     """
+    h, w = level_hw if level_hw is not None else (height, width)
     b = keypoints.shape[0]
     off = patch_offsets(spacing).to(keypoints.device)
     pix = keypoints[:, :, None, :].to(torch.int64) + off                      # (B,K,9,2)
     x, y = pix[..., 0], pix[..., 1]
-    inside = (mask[:, :, None] & (x >= border) & (x <= width - 1 - border)
-              & (y >= border) & (y <= height - 1 - border))
-    sentinel = height * width
-    flat = torch.where(inside, y * width + x, torch.full_like(x, sentinel)).reshape(b, -1)
+    inside = mask[:, :, None] & (x >= 0) & (x <= width - 1) & (y >= 0) & (y <= height - 1)
+    if (h, w) != (height, width):
+        x, y = torch.div(x * w, width, rounding_mode="floor"), torch.div(y * h, height, rounding_mode="floor")
+    inside = inside & (x >= border) & (x <= w - 1 - border) & (y >= border) & (y <= h - 1 - border)
+    sentinel = h * w
+    flat = torch.where(inside, y * w + x, torch.full_like(x, sentinel)).reshape(b, -1)
     flat, _ = flat.sort(dim=1)
     first = torch.ones_like(flat, dtype=torch.bool)
     first[:, 1:] = flat[:, 1:] != flat[:, :-1]
     valid = first & (flat < sentinel)
-    return flat.clamp(max=sentinel - 1), valid
-
-
-def interior_pixels(batch: int, height: int, width: int, border: int = CENSUS_BORDER, device=None
-                    ) -> tuple[torch.Tensor, torch.Tensor]:
-    """Every pixel: ``idx (B,H·W)`` int64 and ``valid (B,H·W)`` bool (False on the ``border``)."""
-    idx = torch.arange(height * width, device=device)
-    x, y = idx % width, idx // width
-    valid = (x >= border) & (x <= width - 1 - border) & (y >= border) & (y <= height - 1 - border)
-    return idx.expand(batch, -1), valid.expand(batch, -1)
+    order = torch.argsort((~valid).to(torch.int8), dim=1, stable=True)   # valid first, order kept
+    m = max(int(valid.sum(1).max()), 1) if b else 1
+    return flat.gather(1, order)[:, :m].clamp(max=sentinel - 1), valid.gather(1, order)[:, :m]
 
 
 def _soft_sign(d: torch.Tensor) -> torch.Tensor:
@@ -136,11 +154,11 @@ def _soft_sign(d: torch.Tensor) -> torch.Tensor:
 
 
 def census_at(img1: torch.Tensor, img2: torch.Tensor, flow: torch.Tensor, idx: torch.Tensor) -> torch.Tensor:
-    """Census distance at chosen target pixels, the source window moved by each pixel's flow.
+    """Census distance at chosen pixels of frame 1, frame 2's window moved by each pixel's flow.
 
-    ``img1, img2 (B,3,H,W)`` in [0,1] (target, source), ``flow (B,2,H,W)`` pixels x first (target →
-    source), ``idx (B,M)`` flat indices ``y·W + x`` of pixels at least one pixel inside the image →
-    ``(B,M)`` distances in [0, 1). Differentiable in ``flow`` (at ``idx`` only) and in ``img2``.
+    ``img1, img2 (B,3,H,W)`` in [0,1], ``flow (B,2,H,W)`` pixels x first (frame 1 → frame 2), ``idx (B,M)``
+    flat indices ``y·W + x`` of pixels at least one pixel inside the image → ``(B,M)`` distances in [0, 1).
+    Differentiable in ``flow`` (at ``idx`` only) and in ``img2``.
     """
     b, _, h, w = img1.shape
     m = idx.shape[1]
@@ -160,46 +178,96 @@ def census_at(img1: torch.Tensor, img2: torch.Tensor, flow: torch.Tensor, idx: t
     return (d / (0.1 + d)).mean(-1)
 
 
-def finetune_loss(flow_fw: torch.Tensor, flow_bw: torch.Tensor, img1: torch.Tensor, img2: torch.Tensor,
-                  keypoints: torch.Tensor | None = None, keypoint_mask: torch.Tensor | None = None,
-                  cfg: FinetuneLossConfig = FinetuneLossConfig()) -> tuple[torch.Tensor, dict[str, float]]:
-    """L_flow of the finest flows (see the module docstring).
+@dataclass
+class _Term:
+    value: torch.Tensor   # mean census distance over the usable pixels (0 without any)
+    pixels: float         # |S| of the level (all images)
+    used: float           # |S'| (not occluded)
 
-    ``flow_fw (B,2,H,W)`` target → source and ``flow_bw (B,2,H,W)`` source → target, pixels x first;
-    ``img1, img2 (B,3,H,W)`` target and source in [0,1]; for ``cfg.pixels == "patch"``: ``keypoints
-    (B,K,2)`` integer pixels of the target (x first) and ``keypoint_mask (B,K)`` bool (see
-    :func:`pad_keypoints`). Returns ``(loss, {"loss", "photometric", "smooth", "pixels", "used_pixels",
-    "coverage", "noc_fraction"})``: ``pixels`` / ``used_pixels`` per image in S / in S' (not occluded),
-    ``coverage`` = share of the image in S.
-    """
-    if flow_fw.shape != flow_bw.shape or flow_fw.shape[-2:] != img1.shape[-2:] or img1.shape != img2.shape:
-        raise ValueError(f"finetune_loss: flows {tuple(flow_fw.shape)}/{tuple(flow_bw.shape)} and images "
-                         f"{tuple(img1.shape)}/{tuple(img2.shape)} must share B, H, W")
-    b, _, h, w = img1.shape
-    if cfg.pixels == "patch":
-        if keypoints is None or keypoint_mask is None:
-            raise ValueError("finetune_loss: the patch loss needs keypoints and keypoint_mask")
-        idx, valid = patch_pixels(keypoints.to(img1.device), keypoint_mask.to(img1.device), h, w, cfg.spacing)
-    else:
-        idx, valid = interior_pixels(b, h, w, device=img1.device)
-    if cfg.occlusion == "range_map":
-        noc, _ = non_occluded_by_range(flow_fw.detach(), flow_bw.detach(), cfg.range_threshold)
-    else:
-        noc, _ = non_occluded_by_consistency(flow_fw.detach(), flow_bw.detach(), cfg.fb_scale, cfg.fb_bias)
-    weight = (valid & (noc.reshape(b, h * w).gather(1, idx) > 0)).to(img1.dtype)
-    dist = census_at(img1, img2, flow_fw, idx)
+
+def _patch_term(img_a: torch.Tensor, img_b: torch.Tensor, flow: torch.Tensor, noc: torch.Tensor,
+                keypoints: torch.Tensor, mask: torch.Tensor, input_hw: tuple[int, int], spacing: int
+                ) -> _Term:
+    """One level and direction: frame a's patches, flow a → b, non-occluded mask ``noc (B,1,h,w)`` of a."""
+    b = flow.shape[0]
+    h, w = flow.shape[-2:]
+    idx, valid = patch_pixels(keypoints, mask, *input_hw, spacing, level_hw=(h, w))
+    weight = (valid & (noc.reshape(b, h * w).gather(1, idx) > 0)).to(img_a.dtype)
+    dist = census_at(img_a, img_b, flow, idx)
     used = weight.sum()
-    photometric = (dist * weight).sum() / used.clamp_min(1.0)
-    smooth = smoothness(flow_fw / float(min(h, w)), img1, cfg.alpha)
+    return _Term((dist * weight).sum() / used.clamp_min(1.0), float(valid.sum()), float(used))
+
+
+def _levels(flows: torch.Tensor | Sequence[torch.Tensor]) -> list[torch.Tensor]:
+    return [flows] if isinstance(flows, torch.Tensor) else list(flows)
+
+
+def finetune_loss(flows_fw: torch.Tensor | Sequence[torch.Tensor],
+                  flows_bw: torch.Tensor | Sequence[torch.Tensor], img1: torch.Tensor, img2: torch.Tensor,
+                  keypoints: torch.Tensor, keypoint_mask: torch.Tensor,
+                  cfg: FinetuneLossConfig = FinetuneLossConfig()) -> tuple[torch.Tensor, dict[str, float]]:
+    """L_flow with the patch loss (see the module docstring).
+
+    ``flows_fw`` frame 1 → 2 and ``flows_bw`` frame 2 → 1: lists of ``(B,2,h_i,w_i)`` flows, finest first,
+    in pixels of their level (finest at the image size), or one ``(B,2,H,W)`` tensor = the finest level
+    alone; ``img1, img2 (B,3,H,W)`` in [0,1] (target, source); ``keypoints`` integer pixels x first and
+    ``keypoint_mask`` bool (see :func:`pad_keypoints`): ``(B,2,K,2)`` / ``(B,2,K)`` for frames 1 and 2, or
+    ``(B,K,2)`` / ``(B,K)`` of frame 1 alone (without ``cfg.backward``). Returns ``(loss, {"loss",
+    "photometric", "smooth", "pixels", "used_pixels", "coverage", "noc_fraction"})``: ``pixels`` /
+    ``used_pixels`` per image in S / in S' of the finest forward term, ``coverage`` = its share of the
+    image, ``noc_fraction`` = frame 1's non-occluded share.
+    """
+    fw, bw = _levels(flows_fw), _levels(flows_bw)
+    if (len(fw) != len(bw) or any(f.shape != g.shape for f, g in zip(fw, bw))
+            or fw[0].shape[-2:] != img1.shape[-2:] or img1.shape != img2.shape):
+        raise ValueError(f"finetune_loss: flows {[tuple(f.shape) for f in fw]}/"
+                         f"{[tuple(f.shape) for f in bw]} and images {tuple(img1.shape)}/{tuple(img2.shape)} "
+                         "must share B and the finest H, W")
+    if any(w > 0 for w in cfg.w_scales[len(fw):]):
+        raise ValueError(f"finetune_loss: w_scales {cfg.w_scales} weighs {len(cfg.w_scales)} levels but only "
+                         f"{len(fw)} flow level(s) were given")
+    device = img1.device
+    keypoints, keypoint_mask = keypoints.to(device), keypoint_mask.to(device)
+    if keypoints.dim() == 3:
+        if cfg.backward:
+            raise ValueError("finetune_loss: the backward term needs the keypoints of frame 2 too: pass "
+                             "keypoints (B,2,K,2) and keypoint_mask (B,2,K)")
+        keypoints, keypoint_mask = keypoints[:, None], keypoint_mask[:, None]
+    b, _, h, w = img1.shape
+    f12, f21 = fw[0].detach(), bw[0].detach()
+    if cfg.occlusion == "range_map":
+        noc1, noc2 = non_occluded_by_range(f12, f21, cfg.range_threshold)
+    else:
+        noc1, noc2 = non_occluded_by_consistency(f12, f21, cfg.fb_scale, cfg.fb_bias)
+    photometric = img1.new_zeros(())
+    finest: _Term | None = None
+    for i, weight in enumerate(cfg.w_scales[:len(fw)]):
+        if weight == 0 and i > 0:
+            continue
+        size = fw[i].shape[-2:]
+        im1 = img1 if i == 0 else F.interpolate(img1, size=size, mode="area")
+        im2 = img2 if i == 0 else F.interpolate(img2, size=size, mode="area")
+        m1 = noc1 if i == 0 else F.interpolate(noc1, size=size, mode="nearest")
+        term = _patch_term(im1, im2, fw[i], m1, keypoints[:, 0], keypoint_mask[:, 0], (h, w), cfg.spacing)
+        finest = term if i == 0 else finest
+        value = term.value
+        if cfg.backward:
+            m2 = noc2 if i == 0 else F.interpolate(noc2, size=size, mode="nearest")
+            back = _patch_term(im2, im1, bw[i], m2, keypoints[:, 1], keypoint_mask[:, 1], (h, w), cfg.spacing)
+            value = (value + back.value) / 2
+        photometric = photometric + weight * value
+    s = float(min(h, w))
+    smooth = smoothness(fw[0] / s, img1, cfg.alpha)
+    if cfg.backward:
+        smooth = (smooth + smoothness(bw[0] / s, img2, cfg.alpha)) / 2
     loss = photometric + cfg.smooth_weight * smooth
-    n_valid = float(valid.sum())
     stats = {
         "loss": float(loss.detach()),
         "photometric": float(photometric.detach()),
         "smooth": float(smooth.detach()),
-        "pixels": n_valid / b,
-        "used_pixels": float(used) / b,
-        "coverage": n_valid / (b * h * w),
-        "noc_fraction": float(noc.mean()),
+        "pixels": finest.pixels / b,
+        "used_pixels": finest.used / b,
+        "coverage": finest.pixels / (b * h * w),
+        "noc_fraction": float(noc1.mean()),
     }
     return loss, stats

@@ -27,6 +27,7 @@ from tqdm import tqdm
 from f2depth.depth import DepthModel
 from f2depth.io import write_text
 from f2depth.losses.total import TERMS
+from f2depth.precision import grad_scaler
 from f2depth.train import checkpoint as ckpt
 from f2depth.train.data import EpochView, TupleDataset, rank_indices
 from f2depth.train.diagnostics import DIAGNOSTIC_KEYS
@@ -118,7 +119,7 @@ def fit(
         result.resumed_from = int(state["epoch"])
     ddp = wrap_model(model, ctx, sync_bn=config.sync_bn)
     optimizer = torch.optim.Adam(ddp.parameters(), lr=config.schedule.lr(0))
-    scaler = torch.amp.GradScaler("cuda", enabled=step_config.amp and ctx.device.type == "cuda")
+    scaler = grad_scaler(ctx.device, step_config.amp)
     if state is not None:
         optimizer.load_state_dict(state["optimizer"])
         if state["scaler"] and scaler.is_enabled():

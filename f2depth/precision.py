@@ -1,0 +1,35 @@
+"""Mixed precision, one home for depth training and flow fine-tuning (``train_depth.amp``,
+``flow_finetune.amp``; off in the paper's profile: P²Net and ARFlow train in float32).
+
+The networks run under ``torch.autocast`` — float16 on CUDA, with a GradScaler against underflowing
+gradients; bfloat16 on a CPU, which needs no scaler —; the geometry and the losses run in float32.
+"""
+
+from __future__ import annotations
+
+from contextlib import AbstractContextManager, nullcontext
+
+import torch
+
+
+def amp_dtype(device: torch.device | str) -> torch.dtype:
+    """The autocast dtype of mixed precision on ``device``: float16 on CUDA, bfloat16 elsewhere."""
+    return torch.float16 if torch.device(device).type == "cuda" else torch.bfloat16
+
+
+def autocast(device: torch.device | str, enabled: bool) -> AbstractContextManager:
+    """The networks' mixed-precision context on ``device``; nothing when not ``enabled``."""
+    if not enabled:
+        return nullcontext()
+    dev = torch.device(device)
+    return torch.autocast(device_type=dev.type, dtype=amp_dtype(dev))
+
+
+def full_precision(device: torch.device | str) -> AbstractContextManager:
+    """Autocast switched off (losses and geometry inside an autocast region run in float32)."""
+    return torch.autocast(device_type=torch.device(device).type, enabled=False)
+
+
+def grad_scaler(device: torch.device | str, enabled: bool) -> torch.amp.GradScaler:
+    """A GradScaler for float16 on CUDA; a disabled (pass-through) one otherwise."""
+    return torch.amp.GradScaler("cuda", enabled=enabled and torch.device(device).type == "cuda")
