@@ -27,6 +27,7 @@ def main(argv: list[str]) -> None:
             min_size=int(P.get(p, "prepare.superpixels.min_size")),
         ),
         workers=int(P.get(p, "prepare.workers")),
+        interpolation=str(P.get(p, "prepare.interpolation")),
     )
     metrics = prepare(
         nyu_raw=P.get(p, "data.nyu_raw"),

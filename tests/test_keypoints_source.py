@@ -202,3 +202,35 @@ def test_stage_rejects_an_unknown_source_in_one_line(tmp_path):
     assert run.returncode == 1
     assert run.stderr.strip() == ("params.yaml: keypoints.source is 'raw'; set it to one of full_resolution, "
                                   "prepared")
+
+
+def test_lanczos_prepared_images_are_p2nets_and_pass_the_raw_check(tmp_path):
+    """prepare.interpolation: lanczos shrinks the undistorted crop with PIL's LANCZOS (P²Net's
+    transforms.Resize), records it in camera.json, and the keypoints stage re-prepares the raw frame with
+    the same filter (an exact match), where the other filter would differ."""
+    from PIL import Image
+
+    from f2depth.keypoints.extract import raw_mismatch
+
+    raw = tmp_path / "raw"
+    paths = _raw_set(raw, flat_last=False)
+    (tmp_path / "scenes.txt").write_text(f"{SCENE}\n")
+    out = tmp_path / "prepared"
+    config = PrepareConfig(height=HW[0], width=HW[1], frame_step=1, crop=16, workers=1,
+                           superpixels=SuperpixelParams(100, 0.5, 10), interpolation="lanczos")
+    prepare(raw, tmp_path / "unused.mat", tmp_path / "unused_splits.mat", out, config,
+            train_scenes_file=tmp_path / "scenes.txt", progress=False)
+    ds = PreparedSet(out)
+    assert ds.interpolation == "lanczos" and json.loads((out / "camera.json").read_text())["interpolation"] \
+        == "lanczos"
+    frame = ds.frames[0]
+    rgb = cv2.undistort(cv2.cvtColor(cv2.imread(str(paths[0])), cv2.COLOR_BGR2RGB), NYU_RGB_K, NYU_RGB_DIST)
+    crop = np.ascontiguousarray(rgb[16:464, 16:624])
+    expected = np.asarray(Image.fromarray(crop).resize((HW[1], HW[0]), Image.Resampling.LANCZOS))
+    np.testing.assert_array_equal(ds.image(frame.frame_id), expected)
+    assert raw_mismatch(crop, expected, "lanczos") == 0.0 and raw_mismatch(crop, expected, "area") > 0.3
+    metrics = extract_keypoints(out, tmp_path / "kp" / "train.npz", tmp_path / "overlays", "p2net",
+                                source="full_resolution", nyu_raw=raw, workers=1, progress=False)
+    assert metrics["raw_vs_prepared_max_diff"] == 0.0
+    with pytest.raises(ValueError, match="prepare.interpolation must be one of"):
+        PrepareConfig(height=HW[0], width=HW[1], interpolation="cubic")

@@ -227,3 +227,28 @@ def read_png16(path: str | os.PathLike, expect_hw: tuple[int, int] | None = None
 def write_rgb(path: str | os.PathLike, rgb: np.ndarray) -> None:
     """Write an RGB uint8 (H, W, 3) image atomically (PNG/JPEG by extension)."""
     imwrite(path, cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+
+
+INTERPOLATIONS = ("area", "lanczos")
+"""Filters that shrink an RGB image to the network size (``prepare.interpolation``, ``evaluate.interpolation``).
+
+``area``: OpenCV's INTER_AREA (box average), anti-aliased (exact block means at integer factors).
+``lanczos``: PIL's LANCZOS on the uint8 image, exactly what P²Net's training and NYU evaluation do
+(``transforms.Resize`` / ``Image.ANTIALIAS``, which is LANCZOS in Pillow ≥ 10; P²Net's code,
+``datasets/nyu_dataset.py`` and ``evaluation/nyuv2_eval_depth.py``); PIL widens the kernel by the scale
+factor, so it anti-aliases too. The two differ by about 1 grey level on average (0..255) on a natural
+photo shrunk 427×561 → 288×384. cv2.INTER_LANCZOS4 is not offered: its fixed 8×8 kernel aliases when
+shrinking.
+"""
+
+
+def resize_rgb(rgb: np.ndarray, hw: tuple[int, int], interpolation: str = "area") -> np.ndarray:
+    """rgb (H,W,3) uint8 → (h,w,3) uint8 with the filter named in :data:`INTERPOLATIONS`."""
+    h, w = hw
+    if rgb.shape[:2] == (h, w):
+        return rgb
+    if interpolation == "lanczos":
+        return np.asarray(Image.fromarray(np.ascontiguousarray(rgb)).resize((w, h), Image.Resampling.LANCZOS))
+    if interpolation == "area":
+        return cv2.resize(np.ascontiguousarray(rgb), (w, h), interpolation=cv2.INTER_AREA)
+    raise ValueError(f"interpolation must be one of {INTERPOLATIONS}, got {interpolation!r}")

@@ -2,7 +2,8 @@
 
 Per training scene: raw RGB frames sorted by timestamp → every ``frame_step``-th → undistorted with the
 NYU RGB calibration (``cv2.undistort``, same K) → ``crop`` px cut from every side → resized to the
-training size (``INTER_AREA`` when shrinking). Frame tuples (target, prev, next) and pairs (t, t+1)
+training size (``interpolation``: ``lanczos`` = PIL's LANCZOS as P²Net, or ``area`` = INTER_AREA when
+shrinking; see ``f2depth.data.images.INTERPOLATIONS``). Frame tuples (target, prev, next) and pairs (t, t+1)
 are consecutive *sampled* frames of one scene. Felzenszwalb superpixels of every tuple target are
 computed on the prepared image as P²Net does (float image in [0, 1]; the colour distance is
 Euclidean, so RGB and P²Net's BGR give the same labels). Synthetic side-car ground truth, when
@@ -37,7 +38,7 @@ from tqdm import tqdm
 
 from f2depth.camera import NYU_RGB_DIST, NYU_RGB_K, NYU_SIZE_HW, crop_resize_intrinsics, undistort_image
 from f2depth.data.errors import DataError
-from f2depth.data.images import write_rgb
+from f2depth.data.images import INTERPOLATIONS, resize_rgb, write_rgb
 from f2depth.data.nyu_labeled import scenes_of_test_images
 from f2depth.data.nyu_raw import RawFrame, list_frames, list_scenes, read_frame
 from f2depth.io import imwrite, save_npz, write_json, write_text
@@ -66,10 +67,14 @@ class PrepareConfig:
     p2net_cxcy_bug: bool = False
     superpixels: SuperpixelParams = field(default_factory=SuperpixelParams)
     workers: int = 1
+    interpolation: str = "area"  # the shrinking filter of the images (f2depth.data.images.INTERPOLATIONS)
 
     def __post_init__(self) -> None:
         if self.height < 1 or self.width < 1 or self.frame_step < 1 or self.crop < 0 or self.workers < 0:
             raise ValueError(f"invalid prepare configuration {self}")
+        if self.interpolation not in INTERPOLATIONS:
+            raise ValueError(f"prepare.interpolation must be one of {list(INTERPOLATIONS)}, "
+                             f"got {self.interpolation!r}")
 
     @property
     def hw(self) -> tuple[int, int]:
@@ -86,13 +91,17 @@ def crop_border(image: np.ndarray, crop: int) -> np.ndarray:
     return image[crop:h - crop, crop:w - crop]
 
 
-def resize_image(image: np.ndarray, hw: tuple[int, int], nearest: bool = False) -> np.ndarray:
+def resize_image(image: np.ndarray, hw: tuple[int, int], nearest: bool = False,
+                 interpolation: str = "area") -> np.ndarray:
     """Resize an (H, W[, C]) array to ``hw`` as prepare does.
 
-    Images: ``INTER_AREA`` when shrinking, bilinear otherwise. ``nearest=True`` (depth): exact
-    nearest-neighbour on pixel centres (``INTER_NEAREST_EXACT``; plain ``INTER_NEAREST`` is offset by
-    up to half a source pixel, which would misalign depth and image).
+    Images: ``interpolation`` ``lanczos`` (PIL, uint8 RGB, as P²Net) or ``area`` (``INTER_AREA`` when
+    shrinking, bilinear otherwise). ``nearest=True`` (depth): exact nearest-neighbour on pixel centres
+    (``INTER_NEAREST_EXACT``; plain ``INTER_NEAREST`` is offset by up to half a source pixel, which would
+    misalign depth and image).
     """
+    if interpolation == "lanczos" and not nearest:
+        return resize_rgb(image, hw, "lanczos")
     if nearest:
         interp = cv2.INTER_NEAREST_EXACT
     elif hw[0] <= image.shape[0] and hw[1] <= image.shape[1]:
@@ -114,9 +123,10 @@ def undistort_crop(raw_rgb: np.ndarray, crop: int) -> np.ndarray:
     return crop_border(undistort_image(raw_rgb, NYU_RGB_K, NYU_RGB_DIST), crop)
 
 
-def prepare_image(raw_rgb: np.ndarray, crop: int, hw: tuple[int, int]) -> np.ndarray:
+def prepare_image(raw_rgb: np.ndarray, crop: int, hw: tuple[int, int], interpolation: str = "area"
+                  ) -> np.ndarray:
     """Distorted NYU raw frame (480, 640, 3) → undistorted, cropped, resized RGB uint8 (H, W, 3)."""
-    return resize_image(undistort_crop(raw_rgb, crop), hw)
+    return resize_image(undistort_crop(raw_rgb, crop), hw, interpolation=interpolation)
 
 
 def superpixels(rgb: np.ndarray, params: SuperpixelParams) -> np.ndarray:
@@ -239,7 +249,7 @@ def scaled_large_px(hw: tuple[int, int]) -> float:
 
 def _run_job(job: _Job) -> tuple[str, int, float, float] | None:
     t, cfg, out = job.task, job.config, job.out
-    img = prepare_image(read_frame(t.raw.path), cfg.crop, cfg.hw)
+    img = prepare_image(read_frame(t.raw.path), cfg.crop, cfg.hw, cfg.interpolation)
     write_rgb(out / image_rel(t), img)
     if t.gt_src is not None:
         depth, pose = read_synth_gt(t.gt_src)
@@ -294,6 +304,7 @@ def _write_tables(out: Path, per_scene: dict[str, list[FrameTask]], config: Prep
         "K": K, "height": config.height, "width": config.width, "p2net_cxcy_bug": config.p2net_cxcy_bug,
         "source_K": NYU_RGB_K, "source_dist": NYU_RGB_DIST, "source_height": NYU_SIZE_HW[0],
         "source_width": NYU_SIZE_HW[1], "crop": config.crop, "frame_step": config.frame_step,
+        "interpolation": config.interpolation,
     })
     return len(tuples), len(pairs)
 

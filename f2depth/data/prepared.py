@@ -143,6 +143,12 @@ class PreparedSet:
             raise DataError(path, f"crop {crop} is negative", _FIX)
         return crop
 
+    @property
+    def interpolation(self) -> str:
+        """The filter prepare shrank the images with (camera.json ``interpolation``; sets made before the
+        key existed used ``area``)."""
+        return str(self.camera.get("interpolation", "area"))
+
     def raw_path(self, frame_id: str, nyu_raw: str | os.PathLike) -> Path:
         """The NYU raw frame a prepared frame was made from: ``nyu_raw / raw_file`` (not checked)."""
         return Path(nyu_raw) / self.frame(frame_id).raw_file

@@ -10,30 +10,15 @@ import logging
 from collections.abc import Iterable, Iterator, Sequence
 from typing import Any, TypeVar
 
-import cv2
 import numpy as np
 import torch
-from PIL import Image
 
 from f2depth.data.errors import DataError
+from f2depth.data.images import resize_rgb
 from f2depth.eval.metrics import PredictDisp, predict_disparity
 
 T = TypeVar("T")
 log = logging.getLogger(__name__)
-
-INTERPOLATIONS = ("area", "lanczos")
-"""Input resize filters (the network input is always a shrunk image).
-
-``area`` (default): OpenCV's INTER_AREA (box average), anti-aliased; it is the filter
-``f2depth.data.prepare`` uses to make the training images, so test inputs are filtered like the
-images the network learned from (exact block means at integer factors, which the tests rely on).
-``lanczos``: PIL's LANCZOS on the uint8 image, exactly what P²Net's evaluation does
-(``Image.ANTIALIAS`` is LANCZOS in Pillow ≥ 10) and what its training used; PIL widens the kernel by
-the scale factor, so it anti-aliases too. The two differ by about 1 grey level on average (0..255) on
-a natural photo shrunk 427×561 → 288×384. cv2.INTER_LANCZOS4 is not offered: its fixed 8×8 kernel
-aliases when shrinking.
-"""
-
 
 def field(sample: Any, name: str, position: int | None = None, aliases: Sequence[str] = ()) -> Any:
     """``sample.<name>`` (or an alias), else ``sample[name]``, else ``sample[position]`` for plain tuples.
@@ -90,18 +75,6 @@ def report_skipped(protocol: str, skipped: Sequence[Any], evaluated: int) -> Non
         log.warning("%s: %d of %d test images skipped: no valid ground-truth pixel (first: %s); the metrics "
                     "are over the other %d", protocol, len(skipped), len(skipped) + evaluated, skipped[0],
                     evaluated)
-
-
-def resize_rgb(rgb: np.ndarray, hw: tuple[int, int], interpolation: str = "area") -> np.ndarray:
-    """rgb (H,W,3) uint8 → (h,w,3) uint8 with the filter named in :data:`INTERPOLATIONS`."""
-    h, w = hw
-    if rgb.shape[:2] == (h, w):
-        return rgb
-    if interpolation == "lanczos":
-        return np.asarray(Image.fromarray(rgb).resize((w, h), Image.Resampling.LANCZOS))
-    if interpolation == "area":
-        return cv2.resize(rgb, (w, h), interpolation=cv2.INTER_AREA)
-    raise ValueError(f"interpolation must be one of {INTERPOLATIONS}, got {interpolation!r}")
 
 
 def to_input(rgb: np.ndarray, hw: tuple[int, int], interpolation: str = "area") -> torch.Tensor:

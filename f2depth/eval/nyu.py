@@ -2,7 +2,7 @@
 
 Per image: crop rgb and ground truth to the Eigen crop (rows 44:471, cols 40:601, 427×561), resize
 the rgb crop to the network size (288×384; INTER_AREA by default like our training images, PIL LANCZOS
-as P²Net by option, see ``f2depth.eval.inputs.INTERPOLATIONS``), predict (optionally with flip
+as P²Net by option, see ``f2depth.data.images.INTERPOLATIONS``), predict (optionally with flip
 post-processing), upsample the disparity to the crop (nearest, as P²Net; bilinear by option) *before*
 the PP blend, depth = 1/disp, valid where gt > 0 (and ≤ ``max_gt_depth`` if given; P²Net has no cap),
 median-scale, clip to [0.1, 10] m, eight metrics. Dataset metrics are the mean over images.
@@ -111,7 +111,7 @@ def evaluate_nyu(
 
     predict_disp: ``img (B,3,height,width) in [0,1] → disp (B,1,h,w)``, depth ∝ 1/disp.
     interpolation: input resize filter, ``area`` (OpenCV, as our training images) or ``lanczos`` (PIL,
-    P²Net's exact filter); see ``f2depth.eval.inputs.INTERPOLATIONS``. keep: sample indices whose
+    P²Net's exact filter); see ``f2depth.data.images.INTERPOLATIONS``. keep: sample indices whose
     final depth map is returned in ``predictions``. Returns a :class:`NyuResult`.
     """
     box = resolve_crop(crop)

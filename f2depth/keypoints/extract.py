@@ -66,10 +66,10 @@ def full_resolution_gray(raw_path: str | os.PathLike, crop: int) -> tuple[np.nda
     return cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY), rgb
 
 
-def raw_mismatch(full_rgb: np.ndarray, prepared_rgb: np.ndarray) -> float:
+def raw_mismatch(full_rgb: np.ndarray, prepared_rgb: np.ndarray, interpolation: str = "area") -> float:
     """Mean |Δ| (grey levels) between a prepared image (H, W, 3) and the full-resolution crop resized as
-    prepare resizes it."""
-    again = resize_image(full_rgb, prepared_rgb.shape[:2])
+    prepare resizes it (with its ``interpolation``)."""
+    again = resize_image(full_rgb, prepared_rgb.shape[:2], interpolation=interpolation)
     return float(np.abs(again.astype(np.int16) - prepared_rgb.astype(np.int16)).mean())
 
 
@@ -83,6 +83,7 @@ class _Task:
     options: dict[str, Any]
     carry: bool
     source: str
+    interpolation: str = "area"  # prepare's filter (camera.json), for the raw-vs-prepared check
 
 
 def _init_worker() -> None:
@@ -98,7 +99,7 @@ def _select_task(task: _Task) -> list[tuple[np.ndarray, float | None]]:
         mismatch = None
         if task.source == "full_resolution":
             gray, full = full_resolution_gray(raw, task.crop)
-            mismatch = raw_mismatch(full, prepared)
+            mismatch = raw_mismatch(full, prepared, task.interpolation)
             if mismatch > MATCH_TOLERANCE:
                 raise DataError(raw, f"prepared again it differs from {image} by {mismatch:.1f} grey levels "
                                 "on average: not the frame prepare read", _RAW_FIX)
@@ -168,7 +169,7 @@ def extract_keypoints(
     else:
         index_groups = [list(range(i, min(i + CHUNK, len(frames)))) for i in range(0, len(frames), CHUNK)]
     tasks = [_Task([paths[i] for i in g], [raws[i] for i in g], data.hw, crop, preset, options, sequence,
-                   source) for g in index_groups]
+                   source, data.interpolation) for g in index_groups]
     points = [np.zeros((0, 3), np.int16)] * len(frames)
     mismatch: list[float | None] = [None] * len(frames)
     with tqdm(total=len(frames), desc=f"keypoints ({preset})", unit="frame", disable=not progress) as bar:
