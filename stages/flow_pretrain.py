@@ -1,11 +1,13 @@
-"""DVC stage `flow_pretrain`: PWC-Lite imported from ARFlow or pretrained with ARFlow's loss.
+"""DVC stage `flow_pretrain`: the flow network (`flow_pretrain.network`, PWC-Lite) imported from ARFlow or
+pretrained with ARFlow's loss.
 
 Usage: python stages/flow_pretrain.py [params.yaml]
 
-With `flow_pretrain.checkpoint` set, that ARFlow *.pth.tar is imported. Otherwise PWC-Lite is trained
-from scratch (ARFlow's schedule, f2depth.flow.pretrain) on the Sintel-layout set at `data.sintel` — the
-synthetic animated set (`source: synthetic`) or MPI Sintel (`source: sintel`) — without its last
-`holdout` sequences, resuming from `resume_dir` after an interruption. Writes `model`,
+With `flow_pretrain.checkpoint` set, that ARFlow *.pth.tar (or another state dict of the network) is
+imported. Otherwise the network is trained from scratch (ARFlow's schedule, f2depth.flow.pretrain) on the
+Sintel-layout set at `data.sintel` — the synthetic animated set (`source: synthetic`) or MPI Sintel
+(`source: sintel`) — without its last `holdout` sequences, resuming from `resume_dir` after an
+interruption. Writes `model` (recording the network's name),
 metrics/flow_pretrain.json (EPE, magnitude ratio Σ|flow|/Σ|gt| and mean cosine to the true flow of the
 model and of zero flow on the held-out sequences and, with `eval_prepared`, on the prepared pairs with
 ground truth) and colour-wheel figures into `figure_dir`.
@@ -22,7 +24,7 @@ from f2depth import params as P
 from f2depth import tracking
 from f2depth.data.sintel import list_pairs, list_sequences
 from f2depth.eval.tables import format_value as fmt
-from f2depth.flow import PWCLite, load_arflow_checkpoint, save_flow_model
+from f2depth.flow import NETWORKS, build_network, load_flow_model, save_flow_model
 from f2depth.flow.pretrain import PretrainConfig, clear_resume, pretrain
 from f2depth.flow.validate import evaluate_prepared, evaluate_sintel
 from f2depth.io import write_json
@@ -50,6 +52,10 @@ def main(argv: list[str]) -> None:
     device = P.resolve_device(str(P.get(p, "device")))
     root, passes = P.get(p, "data.sintel"), tuple(P.get(p, "flow_pretrain.passes"))
     train_seqs, test_seqs = split_sequences(p)
+    network = str(P.get(p, "flow_pretrain.network"))
+    if network not in NETWORKS:
+        raise P.ParamsError(f"{p['_file']}: flow_pretrain.network = {network!r} is not a flow network; "
+                            f"use one of {sorted(NETWORKS)} (f2depth.flow.checkpoint.NETWORKS)")
     cfg = PretrainConfig(**{k: int(section[k]) for k in ("height", "width", "raw_epochs", "census_epochs",
                                                           "batch_size")},
                          lr=float(section["lr"]), seed=int(P.get(p, "seed")), init=str(section["init"]))
@@ -59,11 +65,11 @@ def main(argv: list[str]) -> None:
                      "train_sequences": train_seqs, "heldout_sequences": test_seqs}
     with tracking.stage_run("flow_pretrain", p) as run:
         if section.get("checkpoint"):
-            model = load_arflow_checkpoint(section["checkpoint"])
+            model = load_flow_model(section["checkpoint"], network)
             metrics["imported"] = str(section["checkpoint"])
         else:
             torch.manual_seed(cfg.seed)
-            model = PWCLite()
+            model = build_network(network)
             metrics["training"] = pretrain(
                 model, list_pairs(root, passes, train_seqs), cfg, section["resume_dir"], device,
                 on_epoch=lambda epoch, st: run.log_metrics({f"train.{k}": v for k, v in st.items()}, epoch))

@@ -1,4 +1,5 @@
-"""Checkpoint import and our own format (f2depth.flow.checkpoint), with broken files made in tmp_path."""
+"""Checkpoint import and our own format (f2depth.flow.checkpoint), with broken files made in tmp_path; other
+networks than PWC-Lite: tests/test_flow_network.py."""
 
 from __future__ import annotations
 
@@ -10,7 +11,6 @@ import torch
 from f2depth.flow import PWCLite
 from f2depth.flow.checkpoint import (
     CheckpointError,
-    load_arflow_checkpoint,
     load_flow_model,
     read_flow_checkpoint,
     save_flow_model,
@@ -30,7 +30,7 @@ def _same_weights(model: PWCLite, sd: dict[str, torch.Tensor]) -> bool:
 
 
 def test_reference_checkpoint_loads_by_name(ref_sd):
-    model = load_arflow_checkpoint(REF)
+    model = load_flow_model(REF)
     assert not model.training and _same_weights(model, ref_sd)
 
 
@@ -43,8 +43,10 @@ def test_accepts_arflow_layouts_in_both_serialisations(tmp_path, ref_sd, zip_for
         obj = {"model_state_dict": sd}
     path = tmp_path / "ck.pth.tar"
     torch.save(obj, path, _use_new_zipfile_serialization=zip_format)
-    assert _same_weights(load_arflow_checkpoint(path), ref_sd)
-    assert _same_weights(load_flow_model(path), ref_sd)
+    model, meta = read_flow_checkpoint(path)
+    assert isinstance(model, PWCLite) and not model.training and _same_weights(model, ref_sd)
+    assert meta["format"] == "foreign" and meta["network"] == "pwclite"
+    assert meta["epoch"] == (3 if layout in ("epoch_state_dict", "module_prefix") else None)
 
 
 def test_lists_missing_unexpected_and_misshaped_keys(tmp_path, ref_sd):
@@ -55,12 +57,13 @@ def test_lists_missing_unexpected_and_misshaped_keys(tmp_path, ref_sd):
     path = tmp_path / "broken.pth.tar"
     torch.save({"state_dict": sd}, path)
     with pytest.raises(CheckpointError) as err:
-        load_arflow_checkpoint(path)
+        load_flow_model(path)
     msg = str(err.value)
     assert str(path) in msg
     assert "1 missing key(s): conv_1x1.4.0.bias" in msg
     assert "1 unexpected key(s): extra.weight" in msg
-    assert "flow_estimators.conv1.0.weight (128, 198, 3, 3) (PWC-Lite needs (128, 115, 3, 3))" in msg
+    assert "does not fit the flow network 'pwclite'" in msg
+    assert "flow_estimators.conv1.0.weight (128, 198, 3, 3) (pwclite needs (128, 115, 3, 3))" in msg
     assert "3-frame" in msg
 
 
@@ -69,14 +72,14 @@ def test_not_a_checkpoint_file(tmp_path, content):
     path = tmp_path / "junk.pth.tar"
     path.write_bytes(content)
     with pytest.raises(CheckpointError, match=r"junk\.pth\.tar: not a PyTorch checkpoint"):
-        load_arflow_checkpoint(path)
+        load_flow_model(path)
 
 
 def test_checkpoint_of_something_else(tmp_path):
     path = tmp_path / "other.pt"
     torch.save({"epoch": 1, "losses": [0.1, 0.2]}, path)
     with pytest.raises(CheckpointError, match=r"other\.pt: not a checkpoint.*'epoch', 'losses'"):
-        load_arflow_checkpoint(path)
+        load_flow_model(path)
     torch.save(torch.zeros(3), path)
     with pytest.raises(CheckpointError, match="found Tensor"):
         load_flow_model(path)
@@ -99,12 +102,24 @@ def test_own_format_round_trip(tmp_path):
     path = tmp_path / "models" / "flow.pt"
     save_flow_model(path, model, config={"source": "test"}, params={"lr": 1e-4})
     raw = torch.load(path, weights_only=True)
-    assert raw["format"] == "f2depth.pwclite" and raw["version"] == 1
-    assert set(raw) == {"format", "version", "state_dict", "config", "params"}
-    sd, meta = read_flow_checkpoint(path)
+    assert raw["format"] == "f2depth.flow" and raw["version"] == 2
+    assert raw["network"] == "pwclite" and raw["network_kwargs"] == {}
+    assert set(raw) == {"format", "version", "network", "network_kwargs", "state_dict", "config", "params"}
+    loaded, meta = read_flow_checkpoint(path)
     assert meta["config"] == {"source": "test"} and meta["params"] == {"lr": 1e-4}
-    assert _same_weights(load_flow_model(path), sd)
-    assert all(torch.equal(v, sd[k]) for k, v in model.state_dict().items())
+    assert meta["network"] == "pwclite" and isinstance(loaded, PWCLite) and not loaded.training
+    assert _same_weights(loaded, raw["state_dict"]) and _same_weights(model, raw["state_dict"])
+
+
+def test_checkpoints_written_before_the_network_was_recorded_load_as_pwclite(tmp_path):
+    model = PWCLite()
+    path = tmp_path / "old.pt"
+    torch.save({"format": "f2depth.pwclite", "version": 1, "state_dict": model.state_dict(),
+                "config": {"origin": "synthetic"}, "params": {"lr": 4e-4}}, path)
+    loaded, meta = read_flow_checkpoint(path)
+    assert isinstance(loaded, PWCLite) and _same_weights(loaded, model.state_dict())
+    assert (meta["format"], meta["version"], meta["network"]) == ("f2depth.pwclite", 1, "pwclite")
+    assert meta["config"] == {"origin": "synthetic"} and meta["params"] == {"lr": 4e-4}
 
 
 def test_own_format_wrong_kind_or_version(tmp_path):
@@ -113,5 +128,8 @@ def test_own_format_wrong_kind_or_version(tmp_path):
     with pytest.raises(CheckpointError, match="format 'f2depth.depth'"):
         load_flow_model(path)
     torch.save({"format": "f2depth.pwclite", "version": 2, "state_dict": PWCLite().state_dict()}, path)
-    with pytest.raises(CheckpointError, match="version 2"):
+    with pytest.raises(CheckpointError, match="f2depth.pwclite version 2"):
+        load_flow_model(path)
+    torch.save({"format": "f2depth.flow", "version": 3, "network": "pwclite", "state_dict": {}}, path)
+    with pytest.raises(CheckpointError, match="flow version 3, this code reads f2depth.flow version 2"):
         load_flow_model(path)

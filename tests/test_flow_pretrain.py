@@ -18,6 +18,7 @@ from f2depth.data.sintel import list_pairs, write_flo
 from f2depth.flow import PWCLite, load_flow_model
 from f2depth.flow.pretrain import PretrainConfig, _load_resume, clear_resume, pretrain
 from f2depth.flow.validate import evaluate_sintel
+from f2depth.params import ParamsError
 
 HW = (40, 56)
 STAGE = Path(__file__).resolve().parents[1] / "stages" / "flow_pretrain.py"
@@ -96,30 +97,31 @@ def test_evaluate_sintel_scores_model_and_zero_flow(tmp_path):
     assert len(list((tmp_path / "fig").glob("*.png"))) == 1
 
 
-def _run_stage(params_path: Path) -> None:
-    spec = importlib.util.spec_from_file_location("flow_pretrain_stage", STAGE)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    module.main(["flow_pretrain.py", str(params_path)])
-
-
-def test_stage_end_to_end(tmp_path, monkeypatch):
+def run_stage(tmp_path: Path, monkeypatch, **section) -> dict:
+    """The stage in ``tmp_path`` on :func:`make_set`'s sequences with tiny settings, ``section`` overriding
+    keys of ``flow_pretrain``; returns its metrics."""
     monkeypatch.chdir(tmp_path)
     monkeypatch.setenv("F2DEPTH_MLFLOW", "0")
     make_set(tmp_path / "data" / "animated")
     params = {
-        "seed": 0, "device": "cpu",
+        "seed": 0, "device": "cpu", "allow_random_init": True,
         "data": {"sintel": "data/animated", "prepared": "data/prepared"},
-        "flow_pretrain": {"checkpoint": None, "source": "synthetic", "height": 64, "width": 64,
-                          "raw_epochs": 1, "census_epochs": 1, "batch_size": 4, "lr": 1e-4, "init": "msra",
-                          "holdout": 1,
-                          "passes": ["clean", "final"], "eval_prepared": False, "eval_prepared_pairs": 4,
-                          "figures": 1, "figure_dir": "reports/flow", "model": "models/flow_pretrained.pt",
-                          "resume_dir": "tmp/flow_pretrain"},
+        "flow_pretrain": {"network": "pwclite", "checkpoint": None, "source": "synthetic", "height": 64,
+                          "width": 64, "raw_epochs": 1, "census_epochs": 1, "batch_size": 4, "lr": 1e-4,
+                          "init": "msra", "holdout": 1, "passes": ["clean", "final"], "eval_prepared": False,
+                          "eval_prepared_pairs": 4, "figures": 1, "figure_dir": "reports/flow",
+                          "model": "models/flow_pretrained.pt", "resume_dir": "tmp/flow_pretrain", **section},
     }
     (tmp_path / "params.yaml").write_text(yaml.safe_dump(params))
-    _run_stage(tmp_path / "params.yaml")
-    metrics = json.loads((tmp_path / "metrics" / "flow_pretrain.json").read_text())
+    spec = importlib.util.spec_from_file_location("flow_pretrain_stage", STAGE)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    module.main(["flow_pretrain.py", str(tmp_path / "params.yaml")])
+    return json.loads((tmp_path / "metrics" / "flow_pretrain.json").read_text())
+
+
+def test_stage_end_to_end(tmp_path, monkeypatch):
+    metrics = run_stage(tmp_path, monkeypatch)
     assert metrics["train_sequences"] == ["a_1", "b_1"] and metrics["heldout_sequences"] == ["c_1"]
     for key in ("heldout_clean", "heldout_final"):
         assert metrics[key]["pairs"] == 2
@@ -133,28 +135,21 @@ def test_stage_end_to_end(tmp_path, monkeypatch):
 
 
 def test_stage_imports_an_arflow_checkpoint(tmp_path, monkeypatch):
-    monkeypatch.chdir(tmp_path)
-    monkeypatch.setenv("F2DEPTH_MLFLOW", "0")
-    make_set(tmp_path / "data" / "animated")
     ref = PWCLite()
     torch.save({"epoch": 7, "state_dict": ref.state_dict()}, tmp_path / "arflow.pth.tar",
                _use_new_zipfile_serialization=False)
-    params = {
-        "seed": 0, "device": "cpu", "data": {"sintel": "data/animated", "prepared": "data/prepared"},
-        "flow_pretrain": {"checkpoint": "arflow.pth.tar", "source": "synthetic", "height": 64, "width": 64,
-                          "raw_epochs": 1, "census_epochs": 1, "batch_size": 4, "lr": 1e-4, "init": "pytorch",
-                          "holdout": 2,
-                          "passes": ["clean"], "eval_prepared": False, "eval_prepared_pairs": None,
-                          "figures": 0, "figure_dir": "reports/flow", "model": "models/flow_pretrained.pt",
-                          "resume_dir": "tmp/flow_pretrain"},
-    }
-    (tmp_path / "params.yaml").write_text(yaml.safe_dump(params))
-    _run_stage(tmp_path / "params.yaml")
-    metrics = json.loads((tmp_path / "metrics" / "flow_pretrain.json").read_text())
+    metrics = run_stage(tmp_path, monkeypatch, checkpoint="arflow.pth.tar", init="pytorch", holdout=2,
+                        passes=["clean"], eval_prepared_pairs=None, figures=0)
     assert metrics["source"] == "arflow" and "training" not in metrics
     assert metrics["heldout_sequences"] == ["b_1", "c_1"] and metrics["heldout_clean"]["pairs"] == 4
     loaded = load_flow_model(tmp_path / "models" / "flow_pretrained.pt")
     assert all(torch.equal(v, loaded.state_dict()[k]) for k, v in ref.state_dict().items())
+
+
+def test_stage_names_the_file_and_key_of_an_unknown_network(tmp_path, monkeypatch):
+    with pytest.raises(ParamsError, match=r"params\.yaml: flow_pretrain\.network = 'raft' is not a flow "
+                                          r"network; use one of \['pwclite'\]"):
+        run_stage(tmp_path, monkeypatch, network="raft")
 
 
 def test_config_rejects_an_unknown_init():

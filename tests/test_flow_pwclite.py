@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 import torch
 
-from f2depth.flow import PWCLite, correlation, load_arflow_checkpoint
-from f2depth.flow.pwclite import msra_init
+from f2depth.flow import PWCLite, correlation, load_flow_model
+from f2depth.flow.network import msra_init
 
 REF_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "arflow_reference"
 
@@ -33,7 +33,7 @@ def test_parameter_names_shapes_and_order_equal_arflow():
                                                        (torch.float64, True)])
 def test_reproduces_the_official_flows_within_1e4(ref, dtype, channels_last):
     model = PWCLite(channels_last=channels_last)
-    model.load_state_dict(load_arflow_checkpoint(REF_DIR / "pwclite_seed0.pth.tar").state_dict())
+    model.load_state_dict(load_flow_model(REF_DIR / "pwclite_seed0.pth.tar").state_dict())
     model = model.to(dtype).eval()
     x = torch.from_numpy(ref["input"]).to(dtype)
     with torch.no_grad():
@@ -48,7 +48,7 @@ def test_reproduces_the_official_flows_within_1e4(ref, dtype, channels_last):
 
 
 def test_forward_only_equals_the_forward_half(ref):
-    model = load_arflow_checkpoint(REF_DIR / "pwclite_seed0.pth.tar")
+    model = load_flow_model(REF_DIR / "pwclite_seed0.pth.tar")
     x = torch.from_numpy(ref["input"])
     with torch.no_grad():
         fw, bw = model(x[:, :3], x[:, 3:], with_backward=False)

@@ -1,10 +1,12 @@
-"""Optical flow: ARFlow's PWC-Lite, its cost volume, census, warp, unsupervised loss, AR transforms,
-checkpoint import and evaluation (ARFlow, Liu et al., CVPR 2020; its code github.com/lliuz/ARFlow)."""
+"""Optical flow: the flow-network interface and its registry, ARFlow's PWC-Lite, its cost volume, census,
+warp, unsupervised loss, AR transforms, checkpoints and evaluation (ARFlow, Liu et al., CVPR 2020; its
+code github.com/lliuz/ARFlow)."""
 
 from f2depth.flow.census import census_distance
 from f2depth.flow.checkpoint import (
+    NETWORKS,
     CheckpointError,
-    load_arflow_checkpoint,
+    build_network,
     load_flow_model,
     read_flow_checkpoint,
     save_flow_model,
@@ -12,24 +14,27 @@ from f2depth.flow.checkpoint import (
 from f2depth.flow.correlation import correlation, correlation_reference
 from f2depth.flow.evaluation import EPEAccumulator, epe_stats, flow_to_color, low_texture_mask
 from f2depth.flow.loss import SINTEL_FT, SINTEL_RAW, FlowLossConfig, flow_loss, non_occluded_masks
+from f2depth.flow.network import FlowNetwork
 from f2depth.flow.pwclite import PWCLite
 from f2depth.flow.warp import warp
 from f2depth.geometry import resize_flow
 
 __all__ = [
+    "NETWORKS",
     "SINTEL_FT",
     "SINTEL_RAW",
     "CheckpointError",
     "EPEAccumulator",
     "FlowLossConfig",
+    "FlowNetwork",
     "PWCLite",
+    "build_network",
     "census_distance",
     "correlation",
     "correlation_reference",
     "epe_stats",
     "flow_loss",
     "flow_to_color",
-    "load_arflow_checkpoint",
     "load_flow_model",
     "low_texture_mask",
     "non_occluded_masks",

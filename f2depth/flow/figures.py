@@ -15,7 +15,7 @@ import torch
 
 from f2depth.flow.evaluation import epe_stats, flow_to_color
 from f2depth.flow.finetune_data import GTPair
-from f2depth.flow.pwclite import PWCLite
+from f2depth.flow.network import FlowNetwork
 from f2depth.io import atomic_path
 
 
@@ -35,7 +35,7 @@ def _hw2(flow: torch.Tensor) -> np.ndarray:
 
 
 @torch.no_grad()
-def comparison_rows(models: Mapping[str, PWCLite], pairs: Iterable[GTPair], device: str = "cpu"
+def comparison_rows(models: Mapping[str, FlowNetwork], pairs: Iterable[GTPair], device: str = "cpu"
                     ) -> list[FigureRow]:
     """Predict every pair with every model (``{column title: model}``, in column order)."""
     rows = []

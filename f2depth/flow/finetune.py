@@ -1,9 +1,9 @@
-"""Fine-tuning PWC-Lite on the prepared indoor pairs with F²Depth's patch loss or ARFlow's own loss
-(paper §3.1 and §4.1; Table 6), resumable, with per-epoch EPE on synthetic ground truth.
+"""Fine-tuning the flow network (PWC-Lite) on the prepared indoor pairs with F²Depth's patch loss or ARFlow's
+own loss (paper §3.1 and §4.1; Table 6), resumable, with per-epoch EPE on synthetic ground truth.
 
 Per step: a batch of pairs (t, t+1) with the keypoints of both frames is flipped and colour-jittered
 (:mod:`f2depth.flow.augment`; the network sees the jittered frames, the loss the un-jittered ones), the
-network predicts both directions at all five levels, and :func:`batch_loss` gives L_flow:
+network predicts both directions at all its levels (PWC-Lite: five), and :func:`batch_loss` gives L_flow:
 
 * ``patch`` — :func:`f2depth.flow.patch_loss.finetune_loss` with the ``w_scales`` / ``backward`` settings
   (ARFlow's: four scales, both directions, smoothness on the finest level);
@@ -44,8 +44,8 @@ from f2depth.flow.augment import augment_batch
 from f2depth.flow.evaluation import EPEAccumulator
 from f2depth.flow.finetune_data import FlowPairs, GTPair, collate
 from f2depth.flow.loss import SINTEL_FT, FlowLossConfig, flow_loss
+from f2depth.flow.network import FlowNetwork
 from f2depth.flow.patch_loss import FinetuneLossConfig, finetune_loss
-from f2depth.flow.pwclite import PWCLite
 from f2depth.io import torch_save
 from f2depth.precision import autocast, full_precision, grad_scaler
 
@@ -109,10 +109,10 @@ def batch_loss(flows_fw: Sequence[torch.Tensor], flows_bw: Sequence[torch.Tensor
                cfg: FinetuneConfig) -> tuple[torch.Tensor, dict[str, float]]:
     """L_flow of one batch for ``cfg.loss`` → ``(loss, stats)`` with every :data:`TRAIN_COLUMNS` key.
 
-    ``flows_fw, flows_bw``: PWC-Lite's five levels, finest first, in pixels of their level; ``img1, img2
-    (B,3,H,W)`` in [0,1]; ``keypoints (B,2,K,2)`` / ``keypoint_mask (B,2,K)`` of frames 1 and 2 (patch only;
-    ignored by ``full``). For ``full`` (every pixel), ``coverage`` is 1 and ``used_pixels`` is frame 1's
-    non-occluded share of the image in pixels.
+    ``flows_fw, flows_bw``: the network's levels (PWC-Lite: five), finest first, in pixels of their level;
+    ``img1, img2 (B,3,H,W)`` in [0,1]; ``keypoints (B,2,K,2)`` / ``keypoint_mask (B,2,K)`` of frames 1 and 2
+    (patch only; ignored by ``full``). For ``full`` (every pixel), ``coverage`` is 1 and ``used_pixels`` is
+    frame 1's non-occluded share of the image in pixels.
     """
     if cfg.loss == "full":
         loss, stats = flow_loss(list(flows_fw), list(flows_bw), img1, img2, cfg.full_loss_config())
@@ -138,7 +138,7 @@ def make_optimizer(model: torch.nn.Module, cfg: FinetuneConfig) -> torch.optim.O
 
 
 @torch.no_grad()
-def evaluate_epe(model: PWCLite, pairs: Iterable[GTPair], device: str = "cpu") -> dict[str, Any]:
+def evaluate_epe(model: FlowNetwork, pairs: Iterable[GTPair], device: str = "cpu") -> dict[str, Any]:
     """EPE of the forward flow on ground-truth pairs: ``{"pairs", "epe_all", "epe_noc", "epe_occ",
     "epe_low_texture", "pixels_*", "magnitude_ratio", "cosine"}`` (EPE None for empty pixel sets or no
     pairs; ratio Σ|flow|/Σ|gt| and mean cosine as in :class:`EPEAccumulator`)."""
@@ -176,7 +176,7 @@ def prepare_batch(batch: dict[str, torch.Tensor], cfg: FinetuneConfig, gen: torc
     return {**batch, "net1": batch["img1"], "net2": batch["img2"]}
 
 
-def train_step(model: PWCLite, optimizer: torch.optim.Optimizer, batch: dict[str, torch.Tensor],
+def train_step(model: FlowNetwork, optimizer: torch.optim.Optimizer, batch: dict[str, torch.Tensor],
                cfg: FinetuneConfig, device: torch.device | str = "cpu",
                scaler: torch.amp.GradScaler | None = None) -> dict[str, float] | None:
     """One update on a prepared batch (:func:`prepare_batch`) → its loss terms, or None when the loss was
@@ -202,7 +202,7 @@ def train_step(model: PWCLite, optimizer: torch.optim.Optimizer, batch: dict[str
     return stats
 
 
-def train_epoch(model: PWCLite, dataset: FlowPairs, cfg: FinetuneConfig, optimizer: torch.optim.Optimizer,
+def train_epoch(model: FlowNetwork, dataset: FlowPairs, cfg: FinetuneConfig, optimizer: torch.optim.Optimizer,
                 epoch: int, device: str = "cpu", workers: int = 0, progress: bool = True,
                 scaler: torch.amp.GradScaler | None = None) -> dict[str, float]:
     """One pass over ``dataset`` in the order and with the augmentation of ``epoch``; mean loss terms."""
@@ -243,7 +243,7 @@ def _load_resume(path: Path, fingerprint: Mapping[str, Any]) -> dict[str, Any] |
     return state
 
 
-def finetune(model: PWCLite, dataset: FlowPairs, cfg: FinetuneConfig, eval_pairs: Iterable[GTPair] = (),
+def finetune(model: FlowNetwork, dataset: FlowPairs, cfg: FinetuneConfig, eval_pairs: Iterable[GTPair] = (),
              resume_path: str | os.PathLike | None = None, fingerprint: Mapping[str, Any] | None = None,
              device: str = "cpu", workers: int = 0,
              on_epoch: Callable[[int, dict[str, Any], list[dict[str, Any]]], None] | None = None,

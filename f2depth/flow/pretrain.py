@@ -1,4 +1,4 @@
-"""Unsupervised pretraining of PWC-Lite with ARFlow's schedule, resumable (ARFlow's code:
+"""Unsupervised pretraining of a flow network (PWC-Lite) with ARFlow's schedule, resumable (ARFlow's code:
 ``configs/sintel_raw.json``, ``configs/sintel_ft.json``, ``trainer/base_trainer.py``).
 
 Schedule: ``raw_epochs`` epochs with the ``sintel_raw`` loss (0.15·L1 + 0.85·SSIM, range-map occlusion),
@@ -33,7 +33,7 @@ from tqdm import tqdm
 
 from f2depth.data.sintel import SintelPair, SintelPairs
 from f2depth.flow.loss import SINTEL_FT, SINTEL_RAW, flow_loss
-from f2depth.flow.pwclite import PWCLite, msra_init
+from f2depth.flow.network import FlowNetwork, msra_init
 from f2depth.io import torch_save
 
 RESUME_FORMAT = "f2depth.pwclite_resume"
@@ -97,7 +97,7 @@ def _load_resume(path: Path, cfg: PretrainConfig, n_pairs: int) -> dict[str, Any
     return state
 
 
-def pretrain(model: PWCLite, pairs: Sequence[SintelPair], cfg: PretrainConfig,
+def pretrain(model: FlowNetwork, pairs: Sequence[SintelPair], cfg: PretrainConfig,
              resume_dir: str | os.PathLike | None = None, device: str = "cpu",
              on_epoch: Callable[[int, dict[str, float]], None] | None = None,
              progress: bool = True) -> dict[str, Any]:

@@ -18,6 +18,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from f2depth.flow.correlation import correlation
+from f2depth.flow.network import FlowNetwork
 from f2depth.flow.warp import warp
 from f2depth.geometry import resize_flow
 
@@ -96,28 +97,8 @@ class ContextNetwork(nn.Module):
         return self.convs(x)
 
 
-def msra_init(model: nn.Module, generator: torch.Generator | None = None) -> nn.Module:
-    """MSRA initialisation of every convolution (Kaiming normal, fan-in, zero bias), in place.
-
-    This is what ARFlow's ``init_weights`` sets out to do; because that method tests the (name, module)
-    tuples of ``named_modules()`` against ``nn.Conv2d`` it never matches, so ARFlow actually trains from
-    PyTorch's default initialisation (ARFlow's code, ``models/pwclite.py``). Default-initialised
-    features are small and the cost volume (a mean of products) is then ~100× smaller than the decoder's
-    other inputs.
-    """
-    with torch.no_grad():
-        for module in model.modules():
-            if isinstance(module, nn.Conv2d):
-                fan_in = module.in_channels // module.groups * module.kernel_size[0] * module.kernel_size[1]
-                std = (2.0 / fan_in) ** 0.5
-                module.weight.copy_(torch.randn(module.weight.shape, generator=generator) * std)
-                if module.bias is not None:
-                    module.bias.zero_()
-    return model
-
-
-class PWCLite(nn.Module):
-    """ARFlow's 2-frame PWC-Lite.
+class PWCLite(FlowNetwork):
+    """ARFlow's 2-frame PWC-Lite, the :class:`~f2depth.flow.network.FlowNetwork` named ``pwclite``.
 
     ``flows_fw, flows_bw = model(img1, img2, with_backward=True)``: images ``(B,3,H,W)`` in [0, 1] →
     two lists of five flows ``(B,2,h_i,w_i)``, finest first, level i at ``(⌈H/2^i⌉, ⌈W/2^i⌉)`` in pixels of
@@ -126,7 +107,11 @@ class PWCLite(nn.Module):
 
     ``channels_last`` (default) keeps weights and activations in NHWC strides, which oneDNN's CPU
     convolutions run about 25 % faster; the results differ from NCHW only by float rounding (the
-    reference outputs are matched within 1e-4 either way).
+    reference outputs are matched within 1e-4 either way). It is a memory layout, not architecture:
+    ``architecture()`` is empty and a model rebuilt from a checkpoint is channels-last.
+
+    The pyramid that ``forward`` decodes is computed on the images resized to multiples of 64, so it
+    equals :meth:`features` of the input only when H and W already are multiples of 64.
     """
 
     def __init__(self, channels_last: bool = True) -> None:

@@ -227,7 +227,7 @@ def spatial_transform(img1: torch.Tensor, img2: torch.Tensor, flow: torch.Tensor
 def ar_loss(model: torch.nn.Module, img1: torch.Tensor, img2: torch.Tensor, flow_ori: torch.Tensor,
             noc_ori: torch.Tensor, cfg: ARConfig = SINTEL_AR, generator: torch.Generator | None = None
             ) -> tuple[torch.Tensor, dict[str, float]]:
-    """Weighted AR loss ``cfg.weight · l_ar`` of ``model`` (a PWCLite) on a transformed copy of the pair.
+    """Weighted AR loss ``cfg.weight · l_ar`` of ``model`` (a FlowNetwork) on a transformed copy of the pair.
 
     ``flow_ori (B,2,H,W)`` and ``noc_ori (B,1,H,W)`` are the first pass's finest forward flow and
     non-occluded mask; both are detached here.

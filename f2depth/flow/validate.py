@@ -19,12 +19,12 @@ import torch
 
 from f2depth.data.sintel import SintelPair, load_pair, to_tensor
 from f2depth.flow.evaluation import EPEAccumulator, endpoint_error, flow_to_color, low_texture_mask
-from f2depth.flow.pwclite import PWCLite
+from f2depth.flow.network import FlowNetwork
 from f2depth.geometry import resize_flow
 
 
 @torch.no_grad()
-def predict(model: PWCLite, image1: np.ndarray, image2: np.ndarray, size: tuple[int, int] | None = None,
+def predict(model: FlowNetwork, image1: np.ndarray, image2: np.ndarray, size: tuple[int, int] | None = None,
             device: str = "cpu") -> torch.Tensor:
     """RGB uint8 frames (H,W,3) → forward flow ``(1,2,H,W)`` in the frames' pixels (computed at ``size``)."""
     h, w = image1.shape[:2]
@@ -47,7 +47,7 @@ def _result(acc: EPEAccumulator, zero: EPEAccumulator, pairs: int) -> dict:
     return {"pairs": pairs, "model": acc.result(), "zero_flow": zero.result()}
 
 
-def evaluate_sintel(model: PWCLite, pairs: Sequence[SintelPair], size: tuple[int, int] | None,
+def evaluate_sintel(model: FlowNetwork, pairs: Sequence[SintelPair], size: tuple[int, int] | None,
                     device: str = "cpu", figure_dir: str | os.PathLike | None = None, figures: int = 0
                     ) -> dict:
     """EPE of ``model`` and of zero flow on Sintel-layout pairs with ``.flo`` and occlusion ground truth.
@@ -69,7 +69,7 @@ def evaluate_sintel(model: PWCLite, pairs: Sequence[SintelPair], size: tuple[int
     return _result(acc, zero, len(pairs))
 
 
-def evaluate_prepared(model: PWCLite, prepared_root: str | os.PathLike, max_pairs: int | None = None,
+def evaluate_prepared(model: FlowNetwork, prepared_root: str | os.PathLike, max_pairs: int | None = None,
                       device: str = "cpu", figure_dir: str | os.PathLike | None = None, figures: int = 0
                       ) -> dict | None:
     """EPE on the prepared set's consecutive pairs (``pairs.csv``) that have ground truth; None when the

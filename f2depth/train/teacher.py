@@ -1,15 +1,19 @@
-"""The frozen flow network (PWC-Lite) that supervises depth training (SPEC §4.4).
+"""The frozen flow network that supervises depth training (the paper §3.2, §3.3): any
+:class:`~f2depth.flow.network.FlowNetwork`, rebuilt from its checkpoint (PWC-Lite in the paper).
 
 Eval mode, ``requires_grad=False`` on every weight and ``torch.no_grad`` around every call: nothing
 reaches its weights and it keeps no autograd graph. Per batch it computes, once:
 
-* the flow target (frame 0) → source (+1) at the input resolution. PWC-Lite needs H and W to be multiples
-  of 64; for other sizes ``PWCLite.forward`` resizes both images bilinearly up to the next multiples of
-  64, runs there, and resizes the flow back with its u, v rescaled (ARFlow's protocol; 96×128 runs at
-  128×128, 288×384 at 320×384);
-* the six pyramid features (16…192 channels, finest first) of both frames, computed on the images at the
-  training size as given (level i is ⌈H/2^(i+1)⌉ × ⌈W/2^(i+1)⌉); ``feature_synthesis_loss`` resizes the
-  rigid flow to each level.
+* the flow target (frame 0) → source (+1) at the input resolution: the finest level of the network's
+  forward flow. PWC-Lite needs H and W to be multiples of 64; for other sizes ``PWCLite.forward`` resizes
+  both images bilinearly up to the next multiples of 64, runs there, and resizes the flow back with its
+  u, v rescaled (ARFlow's protocol; 96×128 runs at 128×128, 288×384 at 320×384);
+* the network's feature pyramid (PWC-Lite: six levels, 16…192 channels, finest first) of both frames,
+  computed on the images at the training size as given (PWC-Lite: level i is ⌈H/2^(i+1)⌉ × ⌈W/2^(i+1)⌉);
+  ``feature_synthesis_loss`` resizes the rigid flow to each level. This is a second pass of PWC-Lite's
+  feature extractor: the pyramid inside ``forward`` belongs to the 64-multiple-resized images, which
+  differ from the training-size frames at 96×128 and 288×384 (the extra pass is a small share of the
+  teacher's time).
 
 Inputs are the un-augmented (but flipped) frames: like every other loss input, the supervision sees the
 real colours. Outputs are float32 whatever autocast is active.
@@ -22,13 +26,13 @@ from dataclasses import dataclass
 
 import torch
 
-from f2depth.flow import PWCLite, load_flow_model
+from f2depth.flow import FlowNetwork, load_flow_model
 
 
 @dataclass
 class TeacherOutput:
-    """flow (B,2,H,W) pixels, x first, target → source; feats_tgt / feats_src: six (B,C_l,h_l,w_l) or
-    empty lists when features were not requested."""
+    """flow (B,2,H,W) pixels, x first, target → source; feats_tgt / feats_src: the pyramid levels
+    (B,C_l,h_l,w_l) (PWC-Lite: six) or empty lists when features were not requested."""
 
     flow: torch.Tensor
     feats_tgt: list[torch.Tensor]
@@ -42,7 +46,7 @@ class FlowTeacher:
     never see it.
     """
 
-    def __init__(self, net: PWCLite, device: str | torch.device = "cpu") -> None:
+    def __init__(self, net: FlowNetwork, device: str | torch.device = "cpu") -> None:
         self.net = net.to(device).eval()
         for p in self.net.parameters():
             p.requires_grad_(False)

@@ -1,0 +1,62 @@
+"""The flow-network interface: all that pretraining, fine-tuning, evaluation and the frozen teacher of depth
+training use of a flow network. ARFlow's PWC-Lite (:class:`f2depth.flow.pwclite.PWCLite`) is the one the
+paper uses; the registry that names the implementations is ``f2depth.flow.checkpoint.NETWORKS``, and the
+checkpoint records the name, so a model file rebuilds its own network (docs/flow_finetune.md, "Swapping
+the flow network").
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from typing import Any
+
+import torch
+from torch import nn
+
+
+class FlowNetwork(nn.Module, ABC):
+    """A two-frame optical-flow network.
+
+    ``flows_fw, flows_bw = net(img1, img2, with_backward=True)``: images ``(B,3,H,W)`` RGB in [0, 1] of
+    any size (a network that needs other sizes resizes inside, as PWC-Lite does) → two lists of flows
+    ``(B,2,h_i,w_i)``, finest first, level 0 at ``(H, W)``, each level in pixels of its own resolution, x
+    first; ``flows_fw`` is frame 1 → frame 2, ``flows_bw`` frame 2 → frame 1 or None without
+    ``with_backward``. The fine-tuning and pretraining losses weigh the levels with ``w_scales`` (finest
+    first; a one-level network needs ``flow_finetune.w_scales: [1]``).
+
+    ``features(img)``: the feature pyramid that L_feature compares (the paper §3.3), any number of
+    levels ``(B,C_l,h_l,w_l)``, computed on ``img (B,3,H,W)`` as given.
+
+    ``architecture()``: the constructor's keyword arguments that fix the weights' shapes; the checkpoint
+    records them and passes them back when it rebuilds the network.
+    """
+
+    @abstractmethod
+    def forward(self, img1: torch.Tensor, img2: torch.Tensor, with_backward: bool = True
+                ) -> tuple[list[torch.Tensor], list[torch.Tensor] | None]: ...
+
+    @abstractmethod
+    def features(self, img: torch.Tensor) -> list[torch.Tensor]: ...
+
+    def architecture(self) -> dict[str, Any]:
+        return {}
+
+
+def msra_init(model: nn.Module, generator: torch.Generator | None = None) -> nn.Module:
+    """MSRA initialisation of every convolution (Kaiming normal, fan-in, zero bias), in place.
+
+    This is what ARFlow's ``init_weights`` sets out to do; because that method tests the (name, module)
+    tuples of ``named_modules()`` against ``nn.Conv2d`` it never matches, so ARFlow actually trains from
+    PyTorch's default initialisation (ARFlow's code, ``models/pwclite.py``). Default-initialised
+    features are small and the cost volume (a mean of products) is then ~100× smaller than the decoder's
+    other inputs.
+    """
+    with torch.no_grad():
+        for module in model.modules():
+            if isinstance(module, nn.Conv2d):
+                fan_in = module.in_channels // module.groups * module.kernel_size[0] * module.kernel_size[1]
+                std = (2.0 / fan_in) ** 0.5
+                module.weight.copy_(torch.randn(module.weight.shape, generator=generator) * std)
+                if module.bias is not None:
+                    module.bias.zero_()
+    return model
