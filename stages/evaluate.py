@@ -3,18 +3,19 @@
 Usage: python stages/evaluate.py --variant NAME [--params params.yaml] [--models models]
        [--metrics metrics/evaluate] [--reports reports/eval]
 
-For each seed k of `train_depth.seeds`, models/depth_NAME/seed<k>.pt runs the NYU test protocol (the
-`data.nyu_labeled` test split; `evaluate.nyu_gt`, `evaluate.nyu_crop`), 7-Scenes (test sequences, every
-`evaluate.sevenscenes_stride`-th frame) and Campus, each without and with flip post-processing, and is
-timed at `evaluate.timing_height` × `timing_width` (batch 1, median of `timing_repeats` runs after
-`timing_warmup`). Writes
-- metrics/evaluate/NAME.json: the mean over seeds (nyu.*, nyu_pp.*, sevenscenes.* = mean over all test
-  frames as the paper's Average row, campus.* = mean of the scene rows, ms, ms_pp), `n_seeds`,
-  `per_seed`, `decoder_upsample` (`evaluate.decoder_upsample`: the depth decoder is rebuilt with it) and
-  `trained_with` (the flow model and loss weights the first seed's checkpoint recorded; Table 5's marks);
+For each seed k of `train_depth.seeds`, models/depth_NAME/seed<k>.pt runs the protocol of every test set of
+`evaluate.datasets` (f2depth/eval/registry.py: NYU, the `data.nyu_labeled` test split with `evaluate.nyu_gt`,
+`evaluate.nyu_crop`; 7-Scenes, every `evaluate.sevenscenes_stride`-th test frame; Campus), each without and
+with flip post-processing, and is timed at `evaluate.timing_height` × `timing_width` (batch 1, median of
+`timing_repeats` runs after `timing_warmup`). Writes
+- metrics/evaluate/NAME.json: the mean over seeds of each set's headline (nyu.*, nyu_pp.*, sevenscenes.* =
+  mean over all test frames as the paper's Average row, campus.* = mean of the scene rows, ms, ms_pp),
+  `n_seeds`, `per_seed`, `decoder_upsample` (`evaluate.decoder_upsample`: the depth decoder is rebuilt with
+  it) and `trained_with` (the flow model and loss weights the first seed's checkpoint recorded; Table 5's
+  marks);
 - reports/eval/NAME/: details.json (per-scene rows, std over images, settings, timings per seed),
-  nyu.csv / sevenscenes.csv / campus.csv (per-image metrics of every seed, ± PP) and figures.npz (the
-  first seed's predictions on a few test images, for the tables stage's figures);
+  <set>.csv (per-image metrics of every seed, ± PP) and figures.npz (the first seed's predictions on a few
+  test images, for the tables stage's figures);
 and mirrors the numbers to an MLflow child run `evaluate@NAME`.
 """
 
@@ -29,11 +30,10 @@ import torch
 
 from f2depth import params as P
 from f2depth import tracking
-from f2depth.data.campus import CampusSet
-from f2depth.data.nyu_labeled import NYULabeledSet
-from f2depth.data.sevenscenes import SevenScenesSet
 from f2depth.depth import load_checkpoint, read_checkpoint
-from f2depth.eval.suite import SuiteConfig, evaluate_model, limit, metrics_document, model_disparity, rows_csv
+from f2depth.eval import registry
+from f2depth.eval.inputs import limit
+from f2depth.eval.suite import SuiteConfig, evaluate_model, metrics_document, model_disparity, rows_csv
 from f2depth.io import save_npz, write_json, write_text
 from f2depth.stage import run_stage
 
@@ -52,14 +52,7 @@ def suite_config(p: dict, device: str) -> SuiteConfig:
 def load_sets(p: dict, names: tuple[str, ...]) -> dict:
     """The test sets named in `evaluate.datasets`, cut to `evaluate.max_images` each when set."""
     most = P.get(p, "evaluate.max_images", None)
-    makers = {
-        "nyu": lambda: NYULabeledSet(P.get(p, "data.nyu_labeled"), P.get(p, "data.nyu_splits"), split="test",
-                                     gt=str(P.get(p, "evaluate.nyu_gt"))),
-        "sevenscenes": lambda: SevenScenesSet(P.get(p, "data.sevenscenes"), split="test",
-                                              stride=int(P.get(p, "evaluate.sevenscenes_stride"))),
-        "campus": lambda: CampusSet(P.get(p, "data.campus")),
-    }  # fmt: skip
-    return {name: limit(makers[name](), most) for name in names}
+    return {name: limit(registry.protocol(name).open(lambda key: P.get(p, key)), most) for name in names}
 
 
 def main(argv: list[str]) -> None:
@@ -122,8 +115,7 @@ def main(argv: list[str]) -> None:
 
 
 def summary_line(h: dict) -> str:
-    parts = [f"{g} AbsRel {h[g]['abs_rel']:.3f} δ1 {h[g]['a1']:.3f}" for g in ("nyu", "nyu_pp", "sevenscenes",
-                                                                            "campus") if g in h]
+    parts = [f"{g} AbsRel {h[g]['abs_rel']:.3f} δ1 {h[g]['a1']:.3f}" for g in registry.NAMES if g in h]
     return ", ".join(parts + [f"{h['ms']:.1f} ms ({h['ms_pp']:.1f} ms PP)"])
 
 

@@ -605,10 +605,10 @@ def evaluation() -> Values:
     from f2depth.data.nyu_labeled import NYULabeledSet
     from f2depth.data.sevenscenes import SevenScenesSet
     from f2depth.depth import DepthModel, DepthModelConfig
-    from f2depth.eval.campus import evaluate_campus
+    from f2depth.eval.campus import PROTOCOL as CAMPUS
     from f2depth.eval.metrics import METRIC_NAMES
-    from f2depth.eval.nyu import evaluate_nyu
-    from f2depth.eval.sevenscenes import evaluate_sevenscenes
+    from f2depth.eval.nyu import PROTOCOL as NYU
+    from f2depth.eval.sevenscenes import PROTOCOL as SEVENSCENES
     from f2depth.eval.suite import DATASETS, SuiteConfig, evaluate_model, model_disparity
     from f2depth.eval.suite import GROUPS as GROUPS_OF_HEADLINE
 
@@ -633,21 +633,21 @@ def evaluation() -> Values:
         campus = CampusSet(root / "campus")
         for pp in (False, True):
             tag = "_pp" if pp else ""
-            r = evaluate_nyu(nyu, predict, crop="eigen", upsample="nearest", post_process=pp, batch_size=2,
+            r = NYU.evaluate(nyu, predict, crop="eigen", upsample="nearest", post_process=pp, batch_size=2,
                              **common)
             put(out, f"nyu{tag}.mean", r.summary.mean)
             put(out, f"nyu{tag}.std", r.summary.std)
-            for i, ratio in zip(r.index, r.per_image["ratio"]):
+            for (i,), ratio in zip(r.keys, r.per_image["ratio"]):
                 out[f"nyu{tag}.ratio{int(i)}"] = float(ratio)
-            r = evaluate_sevenscenes(seven, predict, upsample="nearest", post_process=pp, batch_size=2,
+            r = SEVENSCENES.evaluate(seven, predict, upsample="nearest", post_process=pp, batch_size=2,
                                      **common)
-            put(out, f"sevenscenes{tag}.frames", r.frame_weighted.mean)
+            put(out, f"sevenscenes{tag}.frames", r.summary.mean)
             put(out, f"sevenscenes{tag}.average", r.average)
             for scene, summ in r.scenes.items():
                 out[f"sevenscenes{tag}.{scene}.abs_rel"] = summ.mean["abs_rel"]
-            r = evaluate_campus(campus, predict, post_process=pp, **common)
+            r = CAMPUS.evaluate(campus, predict, post_process=pp, **common)
             put(out, f"campus{tag}.average", r.average)
-            put(out, f"campus{tag}.images", r.image_mean.mean)
+            put(out, f"campus{tag}.images", r.summary.mean)
             put(out, f"campus{tag}.pooled", r.pooled)
         # the headline the evaluate stage writes (which summary row of each protocol; timing left out)
         suite = SuiteConfig(height=None, width=None, nyu_crop="eigen", interpolation="lanczos",

@@ -21,7 +21,7 @@ def test_reads_images_and_points(campus):
     ds = CampusSet(root)
     assert len(ds) == 3 and ds.scenes == ["hall", "lab"]
     s = ds[0]
-    assert (s.scene, s.image) == ("hall", "img_000.jpg")
+    assert s.key == ("hall", "img_000.jpg") and s.scene == ds.scene(0) == "hall" and s.depth is None
     assert s.rgb.shape == (*fakes.CAMPUS_HW, 3)
     expect = np.array([r[2:] for r in rows if r[:2] == ["hall", "img_000"]], dtype=np.float64)
     np.testing.assert_allclose(s.points, expect)

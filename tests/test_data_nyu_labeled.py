@@ -60,12 +60,12 @@ def test_labeled_set_reads_image_axes(labeled):
     with NYULabeledSet(mat, splits, split="test") as ds:
         assert len(ds) == 2 and ds.indices.tolist() == [2, 4]
         s = ds[1]
-        assert s.index == 4 and s.scene == "office_0012"
+        assert s.key == (4,) and s.scene == ds.scene(1) == "office_0012" and s.points is None
         assert s.rgb.shape == (480, 640, 3) and s.rgb.dtype == np.uint8
         np.testing.assert_array_equal(s.rgb, arrays["rgb"][3])
         assert s.depth.shape == (480, 640) and s.depth.dtype == np.float32
         np.testing.assert_array_equal(s.depth, arrays["depths"][3])
-        assert ds[-1].index == 4
+        assert ds[-1].key == (4,)
         with pytest.raises(IndexError):
             ds[2]
     raw = NYULabeledSet(mat, splits, split="all", gt="rawDepths")

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from f2depth.data.errors import DataError
-from f2depth.data.sevenscenes import SevenScenesSet
+from f2depth.data.sevenscenes import SevenScenesSet, read_pose
 
 SCENES = {"chess": ([3, 5], [1]), "heads": ([1], [2])}
 
@@ -31,22 +31,24 @@ def root(template, tmp_path):
 def test_test_split_and_sample(root):
     ds = SevenScenesSet(root)
     assert len(ds) == 3 * 3  # chess seq-03, seq-05, heads seq-01
-    seqs = [ds.info(i)[:2] for i in (0, 3, 6)]
+    seqs = [ds[i].key[:2] for i in (0, 3, 6)]
     assert seqs == [("chess", "seq-03"), ("chess", "seq-05"), ("heads", "seq-01")]
+    assert [ds.scene(i) for i in (0, 3, 6)] == ["chess", "chess", "heads"]
     s = ds[2]
-    assert (s.scene, s.seq, s.frame) == ("chess", "seq-03", 2)
+    assert s.key == ("chess", "seq-03", 2) and s.scene == "chess" and s.points is None
     assert s.rgb.shape == (480, 640, 3) and s.rgb.dtype == np.uint8
     assert s.depth.dtype == np.float32 and s.depth.shape == (480, 640)
     assert s.depth[5, 5] == pytest.approx(1.52)  # 1520 mm
     assert (s.depth[0] == 0).all() and (s.depth[1] == 0).all()  # 65535 and 0 → invalid
-    np.testing.assert_allclose(s.world_T_cam[:3, 3], [0.2, 0.0, 0.5])
+    pose = read_pose(root / "chess" / "seq-03" / "frame-000002.pose.txt")
+    np.testing.assert_allclose(pose[:3, 3], [0.2, 0.0, 0.5])
     np.testing.assert_array_equal(ds.K, [[585, 0, 320], [0, 585, 240], [0, 0, 1]])
 
 
 def test_train_split_stride_and_scene_subset(root):
     assert len(SevenScenesSet(root, split="train")) == 6
     ds = SevenScenesSet(root, stride=2, scenes=["heads"])
-    assert [ds.info(i) for i in range(len(ds))] == [("heads", "seq-01", 0), ("heads", "seq-01", 2)]
+    assert [ds[i].key for i in range(len(ds))] == [("heads", "seq-01", 0), ("heads", "seq-01", 2)]
 
 
 def test_missing_folders(root, tmp_path):
@@ -82,4 +84,4 @@ def test_truncated_wrong_size_bad_pose(root):
         ds[1]
     (q / "frame-000002.pose.txt").write_text("1 0 0\n0 1 0\n")
     with pytest.raises(DataError, match=r"frame-000002\.pose\.txt: expected a finite 4×4"):
-        ds[2]
+        read_pose(q / "frame-000002.pose.txt")

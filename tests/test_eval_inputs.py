@@ -1,8 +1,6 @@
-"""Tests for f2depth.eval.inputs: sample fields, input resizing and batching."""
+"""Tests for f2depth.eval.inputs: the typed sample, subsets, input resizing and batching."""
 
 from __future__ import annotations
-
-from collections import namedtuple
 
 import numpy as np
 import pytest
@@ -10,19 +8,54 @@ import torch
 from PIL import Image
 
 from f2depth.eval import inputs as I
+from f2depth.eval.inputs import EvalSample
 
 
-def test_field_by_attribute_key_and_position():
-    NT = namedtuple("NT", "scene rgb")
-    nt = NT("kitchen", 1)
-    assert I.field(nt, "scene", 5) == "kitchen"
-    # namedtuples and tuples have an index() method: it must not pass for an "index" field
-    with pytest.raises(TypeError, match="no field 'index'"):
-        I.field(nt, "index")
-    assert I.field((7, "rgb"), "index", 0) == 7
-    assert I.field({"name": "a.jpg"}, "image", aliases=("name",)) == "a.jpg"
-    with pytest.raises(TypeError, match="no field 'points'"):
-        I.field(object(), "points", 3)
+def test_sample_name_and_checks():
+    rgb = np.zeros((4, 6, 3), np.uint8)
+    s = EvalSample(rgb, "chess", ("chess", "seq-03", 5), depth=np.ones((4, 6), np.float32))
+    assert s.name == "chess/seq-03/5"
+    with pytest.raises(ValueError, match="sample 1: rgb must be uint8"):
+        EvalSample(rgb.astype(np.float32), "a", (1,), depth=np.ones((4, 6), np.float32))
+    with pytest.raises(ValueError, match=r"sample 1: rgb must be \(H,W,3\)"):
+        EvalSample(rgb[..., 0], "a", (1,), depth=np.ones((4, 6), np.float32))
+    with pytest.raises(ValueError, match="exactly one of depth"):
+        EvalSample(rgb, "a", (1,), depth=np.ones((4, 6), np.float32), points=np.ones((1, 3)))
+    # points on the border of the image are inside (pixel centres at integer coordinates)
+    EvalSample(rgb, "a", (1,), points=np.array([[-0.5, -0.5, 1.0], [5.5, 3.5, 2.0]]))
+    with pytest.raises(ValueError, match="1 point"):
+        EvalSample(rgb, "a", (1,), points=np.array([[5.6, 3.0, 1.0]]))
+
+
+class Scenes:
+    """A SampleSet of named scenes whose samples are never read."""
+
+    def __init__(self, scenes):
+        self.scenes = scenes
+
+    def __len__(self):
+        return len(self.scenes)
+
+    def __getitem__(self, i):
+        return self.scenes[i]
+
+    def scene(self, i):
+        return self.scenes[i]
+
+
+def test_spread_limit_and_middle_frames():
+    assert I.spread(10, None) == list(range(10))
+    assert I.spread(10, 3) in ([0, 4, 9], [0, 5, 9])
+    assert I.spread(3, 5) == [0, 1, 2]
+    with pytest.raises(ValueError):
+        I.spread(10, 0)
+    data = Scenes([f"s{k}" for k in range(100, 110)])
+    sub = I.limit(data, 2)
+    assert len(sub) == 2 and list(sub) == ["s100", "s109"] and sub[1] == "s109" and sub.scene(1) == "s109"
+    assert I.limit(data, None) is data
+    frames = Scenes(["chess"] * 3 + ["fire"] * 4 + ["chess"])
+    assert I.middle_frames(frames) == [2, 5]  # chess: 0, 1, 2, 7 → 2; fire: 3..6 → 5
+    assert I.middle_frames(I.limit(frames, 4)) == [1, 2]  # positions 0, 2, 5, 7 of frames
 
 
 def test_resize_filters():
@@ -44,13 +77,6 @@ def test_to_input_layout_and_range():
     x = I.to_input(rgb, (4, 6))
     assert x.shape == (3, 4, 6) and x.dtype == torch.float32
     assert x[1].min() == 1.0 and x[0].max() == 0.0
-
-
-def test_check_rgb():
-    with pytest.raises(ValueError, match="uint8"):
-        I.check_rgb(np.zeros((2, 2, 3), np.float32), "sample 1")
-    with pytest.raises(ValueError, match=r"\(H,W,3\)"):
-        I.check_rgb(np.zeros((2, 2), np.uint8), "sample 1")
 
 
 def test_batched_and_run_batch():

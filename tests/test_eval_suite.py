@@ -9,26 +9,22 @@ from __future__ import annotations
 
 import csv
 import io
-from collections import namedtuple
 
 import numpy as np
 import pytest
 import torch
 
-from f2depth.eval import suite
+from f2depth.eval import registry, suite
+from f2depth.eval.inputs import EvalSample
 from f2depth.eval.metrics import METRIC_NAMES
-
-Nyu = namedtuple("Nyu", "index rgb depth scene")
-Seven = namedtuple("Seven", "rgb depth scene seq frame")
-Campus = namedtuple("Campus", "scene image rgb points")
 
 
 def constant(x: torch.Tensor) -> torch.Tensor:
     return torch.full((x.shape[0], 1, *x.shape[2:]), 0.4)
 
 
-class Frames:
-    """A list of 7-Scenes samples with the loader's ``info``."""
+class Samples:
+    """A list of samples as a SampleSet (``scene(i)`` as the loaders have it)."""
 
     def __init__(self, items):
         self.items = items
@@ -39,9 +35,8 @@ class Frames:
     def __getitem__(self, i):
         return self.items[i]
 
-    def info(self, i):
-        s = self.items[i]
-        return s.scene, s.seq, s.frame
+    def scene(self, i):
+        return self.items[i].scene
 
 
 def sets():
@@ -50,14 +45,15 @@ def sets():
     for i in range(3):
         depth = np.full((480, 640), 1.5 + i, np.float32)
         depth[:50, :50] = 0.0  # holes
-        nyu.append(Nyu(i + 1, rng.integers(0, 256, (480, 640, 3), dtype=np.uint8), depth, "room"))
-    seven = Frames([Seven(rng.integers(0, 256, (48, 64, 3), dtype=np.uint8),
-                          np.full((48, 64), 1200 + 100 * k, np.uint16), scene, "seq-01", k)
-                    for scene in ("chess", "fire") for k in range(3)])
-    campus = [Campus(s, f"img{k}", rng.integers(0, 256, (40, 30, 3), dtype=np.uint8),
-                     np.array([[1.0, 2.0, 3.0 + k], [20.0, 30.0, 3.0 + k], [5.0, 9.0, 3.0 + k]]))
+        rgb = rng.integers(0, 256, (480, 640, 3), dtype=np.uint8)
+        nyu.append(EvalSample(rgb, "room", (i + 1,), depth=depth))
+    seven = [EvalSample(rng.integers(0, 256, (48, 64, 3), dtype=np.uint8), scene, (scene, "seq-01", k),
+                        depth=np.full((48, 64), 1.2 + 0.1 * k, np.float32))
+             for scene in ("chess", "fire") for k in range(3)]
+    campus = [EvalSample(rng.integers(0, 256, (40, 30, 3), dtype=np.uint8), s, (s, f"img{k}"),
+                         points=np.array([[1.0, 2.0, 3.0 + k], [20.0, 30.0, 3.0 + k], [5.0, 9.0, 3.0 + k]]))
               for s in ("1", "2") for k in range(2)]
-    return {"nyu": nyu, "sevenscenes": seven, "campus": campus}
+    return {"nyu": Samples(nyu), "sevenscenes": Samples(seven), "campus": Samples(campus)}
 
 
 CFG = suite.SuiteConfig(batch_size=2, timing_height=32, timing_width=64, timing_repeats=2, timing_warmup=1,
@@ -104,6 +100,14 @@ def test_datasets_subset_and_own_size():
     assert r.details["campus"]["settings"]["height"] == 64
 
 
+def test_settings_reach_the_protocols_that_read_them():
+    cfg = suite.SuiteConfig(nyu_crop="eigen_sc", interpolation="lanczos", upsample="bilinear")
+    assert suite.settings(registry.protocol("nyu"), cfg, (32, 64)) == {
+        "height": 32, "width": 64, "interpolation": "lanczos", "upsample": "bilinear", "crop": "eigen_sc"}
+    assert suite.settings(registry.protocol("campus"), cfg, (32, 64)) == {
+        "height": 32, "width": 64, "interpolation": "lanczos"}
+
+
 def test_config_errors():
     with pytest.raises(ValueError, match="unknown test sets \\['kitti'\\]"):
         suite.SuiteConfig(datasets=("nyu", "kitti"))
@@ -113,18 +117,6 @@ def test_config_errors():
         suite.SuiteConfig(nyu_crop="eigne")
     with pytest.raises(ValueError, match="'nyu' is listed in evaluate.datasets but was not loaded"):
         suite.evaluate_model(constant, {}, suite.SuiteConfig(datasets=("nyu",)), (32, 32))
-
-
-def test_spread_and_limit():
-    assert suite.spread(10, None) == list(range(10))
-    assert suite.spread(10, 3) == [0, 4, 9] or suite.spread(10, 3) == [0, 5, 9]
-    assert suite.spread(3, 5) == [0, 1, 2]
-    data = list(range(100, 110))
-    sub = suite.limit(data, 2)
-    assert len(sub) == 2 and list(sub) == [100, 109] and sub[1] == 109
-    assert suite.limit(data, None) is data
-    with pytest.raises(ValueError):
-        suite.spread(10, 0)
 
 
 def test_mean_over_seeds_and_metrics_document():

@@ -28,8 +28,8 @@ def test_time_inference_reports_median_of_repeats():
     assert (out["height"], out["width"], out["post_process"]) == (16, 24, False)
 
 
-def test_with_and_without_pp():
+def test_with_pp():
     net = Tiny()
-    out = timing.time_with_and_without_pp(net, height=16, width=24, repeats=2, warmup=1)
-    assert out["no_pp"]["post_process"] is False and out["pp"]["post_process"] is True
-    assert net.batches == [1, 1, 1, 2, 2, 2]  # PP runs the image and its flip together
+    out = timing.time_inference(net, height=16, width=24, repeats=2, warmup=1, post_process=True)
+    assert out["post_process"] is True and out["batch"] == 1
+    assert net.batches == [2, 2, 2]  # PP runs the image and its flip together

@@ -8,7 +8,6 @@ import json
 import logging
 import struct
 import zlib
-from collections import namedtuple
 from pathlib import Path
 
 import cv2
@@ -26,6 +25,7 @@ from f2depth.data.images import MAX_PIXELS, header_hw, read_image
 from f2depth.depth import load_checkpoint
 from f2depth.eval import campus as campus_eval
 from f2depth.eval import nyu, sevenscenes
+from f2depth.eval.inputs import EvalSample
 from f2depth.flow import load_flow_model
 from f2depth.flow.checkpoint import CheckpointError
 from f2depth.inference import limits
@@ -254,9 +254,8 @@ def test_truncated_video_is_reported(ckpt, tmp_path, capfd):
     assert len(list((tmp_path / "cut").glob("*_depth.npy"))) == n
 
 
-NyuSample = namedtuple("NyuSample", "index rgb depth scene")
-SevenFrame = namedtuple("SevenFrame", "rgb depth scene seq frame")
-CampusSample = namedtuple("CampusSample", "scene image rgb points")
+def nyu_sample(index: int, rgb: np.ndarray, depth: np.ndarray, scene: str) -> EvalSample:
+    return EvalSample(rgb, scene, (index,), depth=depth)
 
 
 def flat_predictor(x: torch.Tensor) -> torch.Tensor:
@@ -268,14 +267,14 @@ def test_nan_ground_truth_is_rejected_or_reported(caplog):
     good = np.full((32, 32), 2.0, np.float32)
     # NYU: before, an all-NaN depth map was skipped without a word (and NaN pixels silently dropped)
     nan_map = np.full((32, 32), np.nan, np.float32)
-    samples = [NyuSample(1, rgb, good, "a"), NyuSample(2, rgb, nan_map, "b")]
+    samples = [nyu_sample(1, rgb, good, "a"), nyu_sample(2, rgb, nan_map, "b")]
     with pytest.raises(DataError, match=r"NYU sample 2: ground truth has 1024 non-finite value\(s\)"):
-        nyu.evaluate_nyu(samples, flat_predictor, height=32, width=32, crop="none")
+        nyu.PROTOCOL.evaluate(samples, flat_predictor, height=32, width=32, crop="none")
     # an image without any valid pixel (all 0 = missing) is still skipped, now with one warning line
     caplog.set_level(logging.WARNING)
-    res = nyu.evaluate_nyu([NyuSample(1, rgb, good, "a"), NyuSample(2, rgb, 0 * good, "b")], flat_predictor,
-                           height=32, width=32, crop="none")
-    assert res.skipped == [2] and res.summary.count == 1
+    res = nyu.PROTOCOL.evaluate([nyu_sample(1, rgb, good, "a"), nyu_sample(2, rgb, 0 * good, "b")],
+                                flat_predictor, height=32, width=32, crop="none")
+    assert res.skipped == [(2,)] and res.summary.count == 1
     assert [r.getMessage() for r in caplog.records] == [
         "NYU: 1 of 2 test images skipped: no valid ground-truth pixel (first: 2); the metrics are over the "
         "other 1"]
@@ -283,16 +282,16 @@ def test_nan_ground_truth_is_rejected_or_reported(caplog):
     caplog.clear()
     depth = good.copy()
     depth[:3] = np.nan
-    sevenscenes.evaluate_sevenscenes([SevenFrame(rgb, depth, "chess", 1, 0)], flat_predictor, height=32,
-                                     width=32)
+    frame = EvalSample(rgb, "chess", ("chess", "seq-01", 0), depth=depth)
+    sevenscenes.PROTOCOL.evaluate([frame], flat_predictor, height=32, width=32)
     assert [r.getMessage() for r in caplog.records] == [
-        "7-Scenes: 96 ground-truth pixels in 1 frame(s) are NaN or inf and count as missing depth "
-        "(first frame: ('chess', 1, 0))"]
+        "7-Scenes: 96 ground-truth pixels in 1 image(s) are NaN or inf and count as missing depth "
+        "(first: chess/seq-01/0)"]
     # Campus: a NaN point is damage
     pts = np.array([[3.0, 4.0, 2.0], [5.0, 6.0, np.nan]])
-    with pytest.raises(DataError, match=r"Campus \('s1', 'a\.jpg'\): ground truth has 1 non-finite"):
-        campus_eval.evaluate_campus([CampusSample("s1", "a.jpg", rgb, pts)], flat_predictor, height=32,
-                                    width=32)
+    with pytest.raises(DataError, match=r"Campus sample s1/a\.jpg: ground truth has 1 non-finite"):
+        campus_eval.PROTOCOL.evaluate([EvalSample(rgb, "s1", ("s1", "a.jpg"), points=pts)], flat_predictor,
+                                      height=32, width=32)
 
 
 def test_nan_in_synthetic_ground_truth_is_rejected(tmp_path):

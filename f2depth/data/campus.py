@@ -11,7 +11,6 @@ from __future__ import annotations
 import csv
 import math
 import os
-from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -19,20 +18,11 @@ import numpy as np
 
 from f2depth.data.errors import DataError
 from f2depth.data.images import decode, read_bytes, read_image
+from f2depth.eval.inputs import EvalSample
 
 HEADER = ["scene", "image", "u", "v", "depth_m"]
 IMAGE_EXTS = (".jpg", ".jpeg", ".png")
 _FIX = "point data.campus at the Campus folder (or run `dvc repro synth`)"
-
-
-@dataclass(frozen=True)
-class CampusSample:
-    """``rgb`` uint8 (H, W, 3); ``points`` float64 (P, 3) = u, v, depth_m."""
-
-    scene: str
-    image: str
-    rgb: np.ndarray
-    points: np.ndarray
 
 
 def _image_file(name: str) -> str:
@@ -46,7 +36,8 @@ def _image_hw(path: Path) -> tuple[int, int]:
 
 
 class CampusSet:
-    """One sample per labelled image, sorted by (scene, image)."""
+    """One sample per labelled image, sorted by (scene, image): :class:`~f2depth.eval.inputs.EvalSample`
+    with rgb uint8 (H, W, 3), points float64 (P, 3) = u, v, depth_m and key ``(scene, image file name)``."""
 
     def __init__(self, root: str | os.PathLike):
         self.root = Path(root)
@@ -118,13 +109,12 @@ class CampusSet:
     def __len__(self) -> int:
         return len(self._keys)
 
-    def info(self, i: int) -> tuple[str, str]:
-        """(scene, image file name) of sample ``i``."""
-        return self._keys[i]
+    def scene(self, i: int) -> str:
+        return self._keys[i][0]
 
-    def __getitem__(self, i: int) -> CampusSample:
+    def __getitem__(self, i: int) -> EvalSample:
         if not -len(self) <= i < len(self):
             raise IndexError(f"sample {i} of {len(self)}")
         key = self._keys[i]
         rgb = read_image(self.root / key[0] / key[1], self._sizes[key])
-        return CampusSample(key[0], key[1], rgb, self._points[key].copy())
+        return EvalSample(rgb, key[0], key, points=self._points[key].copy())

@@ -9,7 +9,6 @@ The images are already undistorted.
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
 from pathlib import Path
 
 import h5py
@@ -18,20 +17,11 @@ import scipy.io
 
 from f2depth.camera import NYU_SIZE_HW
 from f2depth.data.errors import DataError
+from f2depth.eval.inputs import EvalSample
 
 SPLITS = ("train", "test", "all")
 GT_KEYS = ("depths", "rawDepths")
 _FIX_MAT = "point data.nyu_labeled at the official nyu_depth_v2_labeled.mat (or run `dvc repro synth`)"
-
-
-@dataclass(frozen=True)
-class NYUSample:
-    """``index`` one-based in the labeled set; ``rgb`` uint8 (480, 640, 3); ``depth`` float32 (480, 640) m."""
-
-    index: int
-    rgb: np.ndarray
-    depth: np.ndarray
-    scene: str
 
 
 def _indices(path: Path, mat: dict, key: str, n_images: int | None) -> np.ndarray:
@@ -150,7 +140,8 @@ class NYULabeledSet:
     """The labeled images of one split, read lazily from the HDF5 file (one handle per process).
 
     ``split``: ``"test"`` (654 official), ``"train"`` or ``"all"``; ``gt``: ``"depths"`` (filled)
-    or ``"rawDepths"`` (0 = hole).
+    or ``"rawDepths"`` (0 = hole). Samples: :class:`~f2depth.eval.inputs.EvalSample` with rgb uint8
+    (480, 640, 3), depth float32 (480, 640) m and key ``(index,)``, one-based in the labeled set.
     """
 
     def __init__(self, mat_path: str | os.PathLike, splits_path: str | os.PathLike,
@@ -185,7 +176,7 @@ class NYULabeledSet:
     def scene(self, i: int) -> str:
         return self._scenes[int(self.indices[i]) - 1]
 
-    def __getitem__(self, i: int) -> NYUSample:
+    def __getitem__(self, i: int) -> EvalSample:
         if not -len(self) <= i < len(self):
             raise IndexError(f"sample {i} of {len(self)}")
         idx = int(self.indices[i])
@@ -196,7 +187,7 @@ class NYULabeledSet:
         if bad.any():
             raise DataError(self.mat_path, f"{self.gt} of image {idx} has {int(bad.sum())} negative or "
                                            "non-finite values", _FIX_MAT)
-        return NYUSample(idx, rgb, depth, self._scenes[idx - 1])
+        return EvalSample(rgb, self._scenes[idx - 1], (idx,), depth=depth)
 
     def close(self) -> None:
         if self._file is not None:

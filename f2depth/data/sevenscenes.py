@@ -2,7 +2,8 @@
 
 ``<scene>/TestSplit.txt`` and ``TrainSplit.txt`` list ``sequenceN`` lines (→ ``seq-0N``). Depth is
 uint16 millimetres with 65535 (and 0) invalid; it is read as float32 metres with 0 = invalid. Poses
-are 4×4 camera-to-world matrices. The official depth is not registered to the colour camera.
+are 4×4 camera-to-world matrices (read by ``f2depth.inference``; evaluation needs none). The official
+depth is not registered to the colour camera.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ import numpy as np
 
 from f2depth.data.errors import DataError
 from f2depth.data.images import read_image, read_png16
+from f2depth.eval.inputs import EvalSample
 
 #: Nominal intrinsics of the 7-Scenes colour camera at 640×480.
 SEVENSCENES_K = np.array([[585.0, 0.0, 320.0], [0.0, 585.0, 240.0], [0.0, 0.0, 1.0]])
@@ -25,18 +27,6 @@ SPLIT_FILES = {"test": "TestSplit.txt", "train": "TrainSplit.txt"}
 _SEQ_LINE = re.compile(r"^sequence(\d+)$")
 _FRAME = re.compile(r"^frame-(\d{6})\.color\.png$")
 _FIX = "point data.sevenscenes at the 7-Scenes root (or run `dvc repro synth`)"
-
-
-@dataclass(frozen=True)
-class SevenScenesSample:
-    """``rgb`` uint8 (480, 640, 3); ``depth`` float32 (480, 640) m, 0 = invalid; ``world_T_cam`` (4, 4)."""
-
-    rgb: np.ndarray
-    depth: np.ndarray
-    world_T_cam: np.ndarray
-    scene: str
-    seq: str
-    frame: int
 
 
 @dataclass(frozen=True)
@@ -91,7 +81,10 @@ def read_depth_mm(path: str | os.PathLike, expect_hw: tuple[int, int] = SEVENSCE
 
 
 class SevenScenesSet:
-    """Every ``stride``-th frame of the ``split`` sequences of ``scenes`` (default: all scene folders)."""
+    """Every ``stride``-th frame of the ``split`` sequences of ``scenes`` (default: all scene folders).
+
+    Samples: :class:`~f2depth.eval.inputs.EvalSample` with rgb uint8 (480, 640, 3), depth float32
+    (480, 640) m (0 = invalid) and key ``(scene, seq, frame)``, e.g. ``("chess", "seq-03", 5)``."""
 
     def __init__(self, root: str | os.PathLike, split: str = "test", stride: int = 1,
                  scenes: Sequence[str] | None = None):
@@ -126,27 +119,21 @@ class SevenScenesSet:
         out = []
         for n in frames[:: self.stride]:
             stem = qdir / f"frame-{n:06d}"
-            for suffix in (".depth.png", ".pose.txt"):
-                side = stem.with_name(stem.name + suffix)
-                if not side.is_file():
-                    raise DataError(side, "missing (its colour frame exists)", _FIX)
+            depth = stem.with_name(stem.name + ".depth.png")
+            if not depth.is_file():
+                raise DataError(depth, "missing (its colour frame exists)", _FIX)
             out.append(_Entry(scene, seq, n, stem))
         return out
 
     def __len__(self) -> int:
         return len(self._entries)
 
-    def info(self, i: int) -> tuple[str, str, int]:
-        """(scene, seq, frame) of sample ``i`` without reading it."""
-        e = self._entries[i]
-        return e.scene, e.seq, e.frame
+    def scene(self, i: int) -> str:
+        return self._entries[i].scene
 
-    def __getitem__(self, i: int) -> SevenScenesSample:
+    def __getitem__(self, i: int) -> EvalSample:
         if not -len(self) <= i < len(self):
             raise IndexError(f"sample {i} of {len(self)}")
         e = self._entries[i]
-        base = str(e.stem)
-        rgb = read_image(base + ".color.png", SEVENSCENES_SIZE_HW)
-        depth = read_depth_mm(base + ".depth.png")
-        pose = read_pose(base + ".pose.txt")
-        return SevenScenesSample(rgb, depth, pose, e.scene, e.seq, e.frame)
+        rgb = read_image(f"{e.stem}.color.png", SEVENSCENES_SIZE_HW)
+        return EvalSample(rgb, e.scene, (e.scene, e.seq, e.frame), depth=read_depth_mm(f"{e.stem}.depth.png"))

@@ -1,79 +1,128 @@
-"""What the protocols share: reading fields of a sample, making the network input, running a batch.
+"""What every test set shares: the typed sample its loader returns, the network input, batched prediction.
 
-Samples are plain objects: attributes are read by name (dataclasses, namedtuples, simple classes),
-then mapping keys, and as a last resort a position in a plain tuple (the loaders' documented order).
+Every loader of a test set (``f2depth.data``) returns :class:`EvalSample` s and has ``scene(i)`` (the scene
+of sample ``i`` without reading it): a :class:`SampleSet`. The protocols read nothing else.
 """
 
 from __future__ import annotations
 
 import logging
 from collections.abc import Iterable, Iterator, Sequence
-from typing import Any, TypeVar
+from dataclasses import dataclass
+from typing import Protocol as Interface
+from typing import TypeVar
 
 import numpy as np
 import torch
 
-from f2depth.data.errors import DataError
 from f2depth.data.images import resize_rgb
 from f2depth.eval.metrics import PredictDisp, predict_disparity
 
 T = TypeVar("T")
 log = logging.getLogger(__name__)
 
-def field(sample: Any, name: str, position: int | None = None, aliases: Sequence[str] = ()) -> Any:
-    """``sample.<name>`` (or an alias), else ``sample[name]``, else ``sample[position]`` for plain tuples.
 
-    Attributes that are methods (``tuple.index``) or None do not count as present.
+@dataclass(frozen=True)
+class EvalSample:
+    """One test image and its ground truth, as every test-set loader returns it.
+
+    ``rgb`` (H,W,3) uint8. Exactly one kind of ground truth: ``depth`` (H,W) float metres, 0 = invalid
+    (dense), or ``points`` (K,3) float = u (column), v (row), depth_m at pixels of this image (sparse,
+    laser-measured; pixel centres at integer coordinates). ``scene``: the scene it was taken in; ``key``:
+    its id within the set, the values of the protocol's id columns (NYU ``(index,)``, 7-Scenes ``(scene,
+    seq, frame)``, Campus ``(scene, image)``). Checked on construction (ValueError naming the sample).
     """
-    for key in (name, *aliases):
-        value = getattr(sample, key, None)
-        if value is not None and not callable(value):  # skips tuple.index / tuple.count methods
-            return value
-    if isinstance(sample, dict):
-        for key in (name, *aliases):
-            if key in sample:
-                return sample[key]
-    plain_tuple = isinstance(sample, tuple) and not hasattr(sample, "_fields")
-    if plain_tuple and position is not None and position < len(sample):
-        return sample[position]
-    raise TypeError(
-        f"evaluation sample of type {type(sample).__name__} has no field '{name}'"
-        + (f" (or {', '.join(aliases)})" if aliases else "")
-        + "; give it that attribute (see the protocol's docstring for the fields it reads)"
-    )
+
+    rgb: np.ndarray
+    scene: str
+    key: tuple[str | int, ...]
+    depth: np.ndarray | None = None
+    points: np.ndarray | None = None
+
+    @property
+    def name(self) -> str:
+        """The key as text, e.g. ``chess/seq-03/5``."""
+        return "/".join(map(str, self.key))
+
+    def __post_init__(self) -> None:
+        what = f"sample {self.name}"
+        if self.rgb.ndim != 3 or self.rgb.shape[2] != 3:
+            raise ValueError(f"{what}: rgb must be (H,W,3), got {self.rgb.shape}")
+        if self.rgb.dtype != np.uint8:
+            raise ValueError(f"{what}: rgb must be uint8 (0..255), got {self.rgb.dtype}")
+        if (self.depth is None) == (self.points is None):
+            raise ValueError(f"{what}: give exactly one of depth (dense) and points (sparse ground truth)")
+        h, w = self.rgb.shape[:2]
+        if self.depth is not None:
+            if self.depth.shape != (h, w) or not np.issubdtype(self.depth.dtype, np.floating):
+                raise ValueError(f"{what}: depth must be float metres of the rgb's size {(h, w)}, got "
+                                 f"{self.depth.dtype} {self.depth.shape} (millimetres: convert first)")
+            return
+        p = self.points
+        if p.ndim != 2 or p.shape[1] != 3:
+            raise ValueError(f"{what}: points must be (K,3) = u, v, depth_m, got {p.shape}")
+        u, v = p[:, 0], p[:, 1]
+        outside = ~((u >= -0.5) & (u <= w - 0.5) & (v >= -0.5) & (v <= h - 0.5))
+        if np.any(outside):
+            raise ValueError(f"{what}: {int(outside.sum())} point(s) lie outside the {w}×{h} image; u is the "
+                             "column and v the row in pixels of this image")
 
 
-def check_rgb(rgb: Any, what: str) -> np.ndarray:
-    """rgb (H,W,3) uint8 → the same array, or a TypeError/ValueError that says what is wrong."""
-    rgb = np.asarray(rgb)
-    if rgb.ndim != 3 or rgb.shape[2] != 3:
-        raise ValueError(f"{what}: rgb must be (H,W,3), got {rgb.shape}")
-    if rgb.dtype != np.uint8:
-        raise ValueError(f"{what}: rgb must be uint8 (0..255), got {rgb.dtype}")
-    return rgb
+class SampleSet(Interface):
+    """A test set as its loader gives it: ``len``, ``[i]`` → :class:`EvalSample`, ``scene(i)``."""
+
+    def __len__(self) -> int: ...
+
+    def __getitem__(self, i: int) -> EvalSample: ...
+
+    def scene(self, i: int) -> str: ...
 
 
-def nonfinite_count(values: Any) -> int:
-    """Number of NaN or ±inf entries of a ground-truth array (0 for integer arrays)."""
-    arr = np.asarray(values)
-    return int(np.count_nonzero(~np.isfinite(arr))) if np.issubdtype(arr.dtype, np.floating) else 0
+class Subset:
+    """The samples at ``positions`` of a :class:`SampleSet`; a SampleSet itself."""
+
+    def __init__(self, samples: SampleSet, positions: Sequence[int]) -> None:
+        self.samples, self.positions = samples, [int(p) for p in positions]
+
+    def __len__(self) -> int:
+        return len(self.positions)
+
+    def __getitem__(self, i: int) -> EvalSample:
+        return self.samples[self.positions[i]]
+
+    def scene(self, i: int) -> str:
+        return self.samples.scene(self.positions[i])
 
 
-def check_finite_gt(values: Any, what: str) -> None:
-    """DataError naming ``what`` and the count when ground truth holds NaN or ±inf: every loader marks
-    missing depth with 0, so a non-finite value is damage and would otherwise silently drop pixels (or
-    a whole image) from the metrics."""
-    bad = nonfinite_count(values)
-    if bad:
-        raise DataError(what, f"ground truth has {bad} non-finite value(s) (NaN or inf) of "
-                              f"{np.asarray(values).size}", "missing depth must be 0; check the test data")
+def spread(n: int, k: int | None) -> list[int]:
+    """``k`` evenly spaced positions out of ``n`` (all of them when ``k`` is None or ≥ n)."""
+    if k is None or k >= n:
+        return list(range(n))
+    if k < 1:
+        raise ValueError(f"need at least one image, got max_images={k}")
+    return np.unique(np.linspace(0, n - 1, k).round().astype(int)).tolist()
 
 
-def report_skipped(protocol: str, skipped: Sequence[Any], evaluated: int) -> None:
+def limit(samples: SampleSet, max_images: int | None) -> SampleSet:
+    """The set itself, or an evenly spaced :class:`Subset` of ``max_images`` samples."""
+    if max_images is None or max_images >= len(samples):
+        return samples
+    return Subset(samples, spread(len(samples), max_images))
+
+
+def middle_frames(samples: SampleSet) -> list[int]:
+    """Position of the middle sample of every scene (scenes in order of first appearance)."""
+    by_scene: dict[str, list[int]] = {}
+    for i in range(len(samples)):
+        by_scene.setdefault(samples.scene(i), []).append(i)
+    return [pos[len(pos) // 2] for pos in by_scene.values()]
+
+
+def report_skipped(title: str, skipped: Sequence[str], evaluated: int) -> None:
     """Log one warning line when images were left out because no ground-truth pixel is valid."""
     if skipped:
         log.warning("%s: %d of %d test images skipped: no valid ground-truth pixel (first: %s); the metrics "
-                    "are over the other %d", protocol, len(skipped), len(skipped) + evaluated, skipped[0],
+                    "are over the other %d", title, len(skipped), len(skipped) + evaluated, skipped[0],
                     evaluated)
 
 

@@ -23,8 +23,6 @@ import torch.nn.functional as F
 METRIC_NAMES: tuple[str, ...] = ("abs_rel", "sq_rel", "rmse", "rmse_log", "log10", "a1", "a2", "a3")
 """Error metrics first (lower is better), then the three accuracies (higher is better)."""
 
-LOWER_IS_BETTER: dict[str, bool] = {name: not name.startswith("a") for name in METRIC_NAMES}
-
 DISP_EPS = 1e-8
 """Disparities below this are treated as this value when inverted (avoids division by zero)."""
 

@@ -12,6 +12,7 @@ Metric keys follow ``f2depth.eval.metrics.METRIC_NAMES``; the paper reports no S
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 PAPER = "F²Depth (Guo et al., arXiv 2403.18443)"
@@ -127,24 +128,26 @@ _CAMPUS_SCENES: tuple[tuple[float, ...], ...] = (
     (0.144, 0.230, 0.061, 0.787, 0.987, 1, 0.136, 0.209, 0.058, 0.787, 1, 1),
 )
 
+CAMPUS_IMAGES = 99
+"""Images of Campus Indoor's 18 scenes (the paper §4.1)."""
+
 INFERENCE_MS = {
     "no_pp": 9.4, "pp": 13.5, "device": "NVIDIA GeForce RTX 3090", "height": 288, "width": 384,
     "source": "text of §4.2.1 (Evaluation of depth estimation on NYU Depth V2), beside tab:tab1",
 }  # fmt: skip
 
 
-def _metrics(keys: tuple[str, ...], values: tuple[Any, ...]) -> dict[str, float | None]:
-    return {k: (None if v is None else float(v)) for k, v in zip(keys, values, strict=True)}
+def _row(source: str, keys: tuple[str, ...], values: Sequence[Any], **fields: Any) -> dict[str, Any]:
+    """``fields``, the metrics ``keys`` → ``values`` ("-" = None), then ``source`` and ``quoted: True``."""
+    metrics = {k: (None if v is None else float(v)) for k, v in zip(keys, values, strict=True)}
+    return {**fields, **metrics, "source": source, "quoted": True}
 
 
 def table1() -> list[dict[str, Any]]:
     """All rows of tab:tab1 in the paper's order: ``method, supervised, transformer, post_process``,
     the six metrics, ``source``, ``quoted``."""
-    return [
-        {"method": m, "supervised": s, "transformer": t, "post_process": pp, **_metrics(_NYU_KEYS, v),
-         "source": "tab:tab1", "quoted": True}
-        for m, s, t, pp, *v in _TABLE1
-    ]  # fmt: skip
+    return [_row("tab:tab1", _NYU_KEYS, v, method=m, supervised=s, transformer=t, post_process=pp)
+            for m, s, t, pp, *v in _TABLE1]
 
 
 def nyu(method: str = "F²Depth", post_process: bool = False) -> dict[str, Any]:
@@ -158,19 +161,13 @@ def nyu(method: str = "F²Depth", post_process: bool = False) -> dict[str, Any]:
 def table5() -> list[dict[str, Any]]:
     """tab:tab5 (losses on/off × PP): ``variant`` (our ablation name), ``post_process``, ``rigid``
     (optical-flow consistency loss), ``feature`` (feature-map synthesis loss), the six metrics."""
-    return [
-        {"variant": var, "post_process": pp, "rigid": rg, "feature": ft, **_metrics(_NYU_KEYS, v),
-         "source": "tab:tab5", "quoted": True}
-        for var, pp, rg, ft, *v in _TABLE5
-    ]  # fmt: skip
+    return [_row("tab:tab5", _NYU_KEYS, v, variant=var, post_process=pp, rigid=rg, feature=ft)
+            for var, pp, rg, ft, *v in _TABLE5]
 
 
 def table6() -> list[dict[str, Any]]:
     """tab:tab6 (flow weights, no PP): ``variant`` (our ablation name), ``weights`` (paper's label)."""
-    return [
-        {"variant": var, "weights": label, **_metrics(_NYU_KEYS, v), "source": "tab:tab6", "quoted": True}
-        for var, label, *v in _TABLE6
-    ]
+    return [_row("tab:tab6", _NYU_KEYS, v, variant=var, weights=label) for var, label, *v in _TABLE6]
 
 
 def sevenscenes(method: str = "F²Depth") -> list[dict[str, Any]]:
@@ -178,19 +175,13 @@ def sevenscenes(method: str = "F²Depth") -> list[dict[str, Any]]:
     ``Average`` (which matches the frame-weighted mean of the scene rows, see f2depth.eval.sevenscenes)."""
     if method not in _SEVENSCENES:
         raise KeyError(f"tab:tab7scenes has no method {method!r}; use one of {sorted(_SEVENSCENES)}")
-    return [
-        {"scene": s, "method": method, "post_process": True, **_metrics(_7S_KEYS, v),
-         "source": "tab:tab7scenes", "quoted": True}
-        for s, v in _SEVENSCENES[method].items()
-    ]  # fmt: skip
+    rows = _SEVENSCENES[method].items()
+    return [_row("tab:tab7scenes", _7S_KEYS, v, scene=s, method=method, post_process=True) for s, v in rows]
 
 
 def campus() -> list[dict[str, Any]]:
     """tab:tab3 (Campus Indoor, mean of the 18 scene rows; last row is F²Depth on NYU for reference)."""
-    return [
-        {"method": m, "supervised": s, **_metrics(_NYU_KEYS, v), "source": "tab:tab3", "quoted": True}
-        for m, s, *v in _CAMPUS
-    ]
+    return [_row("tab:tab3", _NYU_KEYS, v, method=m, supervised=s) for m, s, *v in _CAMPUS]
 
 
 def campus_scenes(method: str = "F²Depth") -> list[dict[str, Any]]:
@@ -198,11 +189,27 @@ def campus_scenes(method: str = "F²Depth") -> list[dict[str, Any]]:
     offset = {"F²Depth": 0, "P²Net": 6}.get(method)
     if offset is None:
         raise KeyError(f"tab:tab4 has no method {method!r}; use 'F²Depth' or 'P²Net'")
-    return [
-        {"scene": str(i + 1), "method": method, **_metrics(_NYU_KEYS, row[offset : offset + 6]),
-         "source": "tab:tab4", "quoted": True}
-        for i, row in enumerate(_CAMPUS_SCENES)
-    ]  # fmt: skip
+    return [_row("tab:tab4", _NYU_KEYS, row[offset : offset + 6], scene=str(i + 1), method=method)
+            for i, row in enumerate(_CAMPUS_SCENES)]
+
+
+Pair = tuple[str, "int | None", dict[str, Any], dict[str, Any]]
+"""A quoted row of a per-scene table: (scene label, image count, F²Depth's row, P²Net's row)."""
+
+
+def sevenscenes_pairs() -> list[Pair]:
+    """tab:tab7scenes as F²Depth beside P²Net per scene (titled as the paper), then ``Average``."""
+    theirs = {r["scene"]: r for r in sevenscenes("P²Net")}
+    return [(SEVENSCENES_TITLES.get(r["scene"], r["scene"]), None, r, theirs[r["scene"]])
+            for r in sevenscenes("F²Depth")]
+
+
+def campus_pairs() -> list[Pair]:
+    """tab:tab4's 18 scenes (``No. k``), F²Depth beside P²Net, then tab:tab3's average over the 99 images."""
+    avg = {r["method"]: r for r in campus()}
+    scenes = zip(campus_scenes("F²Depth"), campus_scenes("P²Net"))
+    return [*((f"No. {a['scene']}", None, a, b) for a, b in scenes),
+            ("Average of 18 scenes", CAMPUS_IMAGES, avg["F²Depth"], avg["P²Net"])]
 
 
 def inference_ms() -> dict[str, Any]:

@@ -72,12 +72,3 @@ def time_inference(
         "device": str(dev),
         "threads": torch.get_num_threads(),
     }
-
-
-def time_with_and_without_pp(predict_disp: PredictDisp, **kwargs: Any) -> dict[str, dict[str, Any]]:
-    """``{"no_pp": ..., "pp": ...}``: :func:`time_inference` without and with post-processing."""
-    kwargs.pop("post_process", None)
-    return {
-        "no_pp": time_inference(predict_disp, post_process=False, **kwargs),
-        "pp": time_inference(predict_disp, post_process=True, **kwargs),
-    }

@@ -8,12 +8,11 @@ from pathlib import Path
 
 import numpy as np
 
+from f2depth.eval import registry
 from f2depth.io import write_text
 from f2depth.report import figures
 from f2depth.report.paper_tables import OURS, P2NET, Table
 from f2depth.report.results import VariantResults
-
-DATASET_TITLES = {"nyu": "NYU Depth V2 test images", "sevenscenes": "7-Scenes test frames (one per scene)"}
 
 
 def _same_images(a: VariantResults, b: VariantResults, prefix: str) -> bool:
@@ -23,14 +22,17 @@ def _same_images(a: VariantResults, b: VariantResults, prefix: str) -> bool:
 
 def write_figures(results: Mapping[str, VariantResults], depth_histories: Mapping[str, Mapping],
                   flow_histories: Mapping[str, Mapping], out_dir: str | os.PathLike) -> list[Path]:
-    """Qualitative grids and AbsRel error maps (RGB, baseline, full, GT; the first seed, no PP) for NYU
-    and 7-Scenes, and the training curves. Returns the files written."""
+    """Qualitative grids and AbsRel error maps (RGB, baseline, full, GT; the first seed, no PP) for every
+    test set with figures (``Protocol.report.figure``: NYU, 7-Scenes), and the training curves. Returns the
+    files written."""
     out = Path(out_dir)
     written: list[Path] = []
     ours, base = results.get(OURS), results.get(P2NET)
-    for prefix, title in DATASET_TITLES.items():
-        if ours is None or f"{prefix}_pred" not in ours.kept:
+    for protocol in registry.protocols():
+        prefix, figure = protocol.name, protocol.report.figure
+        if figure is None or ours is None or f"{prefix}_pred" not in ours.kept:
             continue
+        title = figure.title
         preds = [("F²Depth (full)", ours.kept[f"{prefix}_pred"])]
         if base is not None and _same_images(ours, base, prefix):
             preds.insert(0, ("P²Net (baseline)", base.kept[f"{prefix}_pred"]))

@@ -52,30 +52,18 @@ def abs_rel_map(pred: np.ndarray, gt: np.ndarray) -> np.ndarray:
     return out
 
 
-def depth_grid(path: str | os.PathLike, rgb: np.ndarray, preds: Sequence[tuple[str, np.ndarray]],
-               gt: np.ndarray, row_labels: Sequence[str] = (), title: str = "") -> None:
-    """Rows of [RGB, each prediction, ground truth]. rgb (K,h,w,3) uint8; preds: (label, (K,h,w) m);
-    gt (K,h,w) m, 0 = invalid. One colour scale per row with a colour bar."""
-    k = rgb.shape[0]
-    cols = 2 + len(preds)
-    h, w = gt.shape[1:]
-    fig = Figure(figsize=(2.4 * cols + 0.8, 2.4 * h / w * k + (0.5 if title else 0.3)), layout="constrained")
-    axes = fig.subplots(k, cols, squeeze=False)
-    cmap = _cmap(DEPTH_CMAP)
-    headers = ["RGB", *[p[0] for p in preds], "Ground truth"]
-    for i in range(k):
-        lo, hi = row_range(gt[i])
-        axes[i, 0].imshow(rgb[i])
-        im = None
-        for j, (_, pred) in enumerate(preds, start=1):
-            im = axes[i, j].imshow(pred[i], cmap=cmap, vmin=lo, vmax=hi)
-        axes[i, -1].imshow(np.ma.masked_less_equal(gt[i], 0), cmap=cmap, vmin=lo, vmax=hi)
-        if im is not None:
-            fig.colorbar(im, ax=axes[i, -1], fraction=0.05, pad=0.02, label="m")
-        if i < len(row_labels):
-            axes[i, 0].set_ylabel(row_labels[i], fontsize=8)
-    for j, head in enumerate(headers):
-        axes[0, j].set_title(head, fontsize=10)
+def _grid(k: int, cols: int, hw: tuple[int, int], row_inches: float, title: str) -> tuple[Figure, np.ndarray]:
+    """A figure of ``k`` rows × ``cols`` panels of images of aspect ``hw``; axes (k, cols)."""
+    size = (2.4 * cols + 0.8, row_inches * hw[0] / hw[1] * k + (0.5 if title else 0.3))
+    fig = Figure(figsize=size, layout="constrained")
+    return fig, fig.subplots(k, cols, squeeze=False)
+
+
+def _finish(fig: Figure, axes: np.ndarray, path: str | os.PathLike, row_labels: Sequence[str],
+            title: str) -> None:
+    """Row labels, no ticks, the title; then write the PNG."""
+    for i, label in enumerate(row_labels[: axes.shape[0]]):
+        axes[i, 0].set_ylabel(label, fontsize=8)
     for ax in axes.ravel():
         ax.set_xticks([])
         ax.set_yticks([])
@@ -84,15 +72,32 @@ def depth_grid(path: str | os.PathLike, rgb: np.ndarray, preds: Sequence[tuple[s
     _save(fig, path)
 
 
+def depth_grid(path: str | os.PathLike, rgb: np.ndarray, preds: Sequence[tuple[str, np.ndarray]],
+               gt: np.ndarray, row_labels: Sequence[str] = (), title: str = "") -> None:
+    """Rows of [RGB, each prediction, ground truth]. rgb (K,h,w,3) uint8; preds: (label, (K,h,w) m);
+    gt (K,h,w) m, 0 = invalid. One colour scale per row with a colour bar."""
+    fig, axes = _grid(rgb.shape[0], 2 + len(preds), gt.shape[1:], 2.4, title)
+    cmap = _cmap(DEPTH_CMAP)
+    for i in range(rgb.shape[0]):
+        lo, hi = row_range(gt[i])
+        axes[i, 0].imshow(rgb[i])
+        im = None
+        for j, (_, pred) in enumerate(preds, start=1):
+            im = axes[i, j].imshow(pred[i], cmap=cmap, vmin=lo, vmax=hi)
+        axes[i, -1].imshow(np.ma.masked_less_equal(gt[i], 0), cmap=cmap, vmin=lo, vmax=hi)
+        if im is not None:
+            fig.colorbar(im, ax=axes[i, -1], fraction=0.05, pad=0.02, label="m")
+    for j, head in enumerate(["RGB", *[p[0] for p in preds], "Ground truth"]):
+        axes[0, j].set_title(head, fontsize=10)
+    _finish(fig, axes, path, row_labels, title)
+
+
 def error_grid(path: str | os.PathLike, rgb: np.ndarray, preds: Sequence[tuple[str, np.ndarray]],
                gt: np.ndarray, row_labels: Sequence[str] = (), title: str = "") -> None:
     """Rows of [RGB, AbsRel map of each prediction] on one scale 0…ERROR_MAX; each panel is titled with
     its mean AbsRel over the valid pixels."""
     k = rgb.shape[0]
-    cols = 1 + len(preds)
-    h, w = gt.shape[1:]
-    fig = Figure(figsize=(2.4 * cols + 0.8, 2.6 * h / w * k + (0.5 if title else 0.3)), layout="constrained")
-    axes = fig.subplots(k, cols, squeeze=False)
+    fig, axes = _grid(k, 1 + len(preds), gt.shape[1:], 2.6, title)
     cmap = _cmap(ERROR_CMAP)
     im = None
     for i in range(k):
@@ -102,17 +107,10 @@ def error_grid(path: str | os.PathLike, rgb: np.ndarray, preds: Sequence[tuple[s
             im = axes[i, j].imshow(np.ma.masked_invalid(err), cmap=cmap, vmin=0.0, vmax=ERROR_MAX)
             mean = float(np.nanmean(err)) if np.isfinite(err).any() else math.nan
             axes[i, j].set_title(f"{label}: AbsRel {mean:.3f}", fontsize=8)
-        if i < len(row_labels):
-            axes[i, 0].set_ylabel(row_labels[i], fontsize=8)
     axes[0, 0].set_title("RGB", fontsize=10)
-    for ax in axes.ravel():
-        ax.set_xticks([])
-        ax.set_yticks([])
     if im is not None:
         fig.colorbar(im, ax=axes, shrink=min(1.0, 3.0 / k), fraction=0.05, pad=0.02, label="|pred − gt| / gt")
-    if title:
-        fig.suptitle(title, fontsize=11)
-    _save(fig, path)
+    _finish(fig, axes, path, row_labels, title)
 
 
 def training_curves(path: str | os.PathLike, depth: Mapping[str, Mapping[str, Sequence[float]]],

@@ -2,7 +2,9 @@
 
 Each builder returns a :class:`Table` (rows and columns for ``f2depth.eval.tables.write_table``). Our
 cells are per-seed lists (rendered ``mean ± std``, with the seed count in the ``n`` column); the
-paper's rows (``f2depth.eval.published``) carry ``quoted: True`` and get the † marker.
+paper's rows (``f2depth.eval.published``) carry ``quoted: True`` and get the † marker. Tables 1, 5 and 6
+are NYU's; the other test sets of ``f2depth.eval.registry`` bring their per-scene table
+(``Protocol.report.table``) and their columns of the variants overview.
 
 Variant roles: ``full`` = F²Depth, ``baseline`` = our P²Net (no flow losses), ``no_feature`` = + L_rigid
 only, ``flow_pretrained`` / ``flow_full_ft`` = flow network not fine-tuned / fine-tuned on all pixels.
@@ -16,14 +18,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from f2depth.eval import published
+from f2depth.eval import published, registry
 from f2depth.eval.metrics import METRIC_NAMES
+from f2depth.eval.protocol import Protocol
 from f2depth.eval.tables import RULE, Column, metric_columns, to_markdown, write_table
 from f2depth.io import write_text
 from f2depth.report.results import VariantResults
 
 PAPER_NYU = ("abs_rel", "rmse", "log10", "a1", "a2", "a3")
-PAPER_7S = ("abs_rel", "rmse", "a1", "a2", "a3")
 OURS, P2NET = "full", "baseline"
 N_COLUMN = Column("n", "n", align="r")
 
@@ -142,76 +144,32 @@ def _pair_columns(names: Sequence[str], first: str, second: str, count: str) -> 
             + [Column(f"b_{m}", f"{second} {heads[m]}") for m in names] + [N_COLUMN])
 
 
-def sevenscenes_table(results: Mapping[str, VariantResults]) -> Table | None:
-    """7-Scenes per scene (tab:tab7scenes, + PP): ours (full) beside our P²Net (baseline), the
-    frame-weighted average (how the paper's Average row is computed) and the mean of the scene rows,
-    then the paper's rows."""
-    a, b = results.get(OURS), results.get(P2NET)
-    if a is None or not a.scenes("sevenscenes_pp"):
+def scene_table(results: Mapping[str, VariantResults], protocol: Protocol) -> Table | None:
+    """A test set's per-scene table (its ``report.table``; the paper's 7-Scenes table, Campus Tables 3 and
+    4): ours (full) beside our P²Net (baseline) per scene, the summary rows, then the paper's rows."""
+    spec, a, b = protocol.report.table, results.get(OURS), results.get(P2NET)
+    if spec is None or a is None or not a.scenes(spec.group):
         return None
-    group = "sevenscenes_pp"
-    rows: list[dict[str, Any]] = []
+    count, group = protocol.scene_rows.count, spec.group
 
-    def pair(scene_vals) -> dict[str, Any]:
-        out = {f"a_{m}": scene_vals(a, m) for m in PAPER_7S}
-        out |= {f"b_{m}": scene_vals(b, m) if b is not None else None for m in PAPER_7S}
+    def pair(values) -> dict[str, Any]:
+        out = {f"a_{m}": values(a, m) for m in spec.metrics}
+        out |= {f"b_{m}": values(b, m) if b is not None else None for m in spec.metrics}
         return out | {"n": a.n_seeds}
 
-    for scene in a.scenes(group):
-        title = published.SEVENSCENES_TITLES.get(scene, scene)
-        rows.append({"scene": title, "frames": a.scene_count(group, scene),
-                     **pair(lambda r, m, s=scene: r.scene_values(group, s, m))})
+    rows: list[dict[str, Any]] = [
+        {"scene": spec.scene_titles.get(scene, scene), count: a.scene_count(group, scene),
+         **pair(lambda r, m, s=scene: r.scene_values(group, s, m))} for scene in a.scenes(group)]  # fmt: skip
     total = sum(a.scene_count(group, s) or 0 for s in a.scenes(group))
-    rows.append({"scene": "Average (frame-weighted, as the paper)", "frames": total,
-                 **pair(lambda r, m: r.values(group, m))})
-    rows.append({"scene": "Mean of scene rows", "frames": total,
-                 **pair(lambda r, m: r.scene_mean_values(group, m))})
+    summaries = {"headline": lambda r, m: r.values(group, m),
+                 "scene_mean": lambda r, m: r.scene_mean_values(group, m)}
+    rows += [{"scene": label, count: total, **pair(summaries[kind])} for label, kind in spec.summaries]
     rows.append(RULE)
-    paper_a = {r["scene"]: r for r in published.sevenscenes("F²Depth")}
-    paper_b = {r["scene"]: r for r in published.sevenscenes("P²Net")}
-    for scene, ra in paper_a.items():
-        rb = paper_b[scene]
-        rows.append({"scene": published.SEVENSCENES_TITLES.get(scene, scene), "frames": None,
-                     **{f"a_{m}": ra[m] for m in PAPER_7S}, **{f"b_{m}": rb[m] for m in PAPER_7S},
-                     "n": None, "quoted": True})
-    return Table("sevenscenes_scenes", rows, _pair_columns(PAPER_7S, "F²Depth", "P²Net", "frames"),
-                 "7-Scenes per scene (zero-shot, + PP): F²Depth (ours: full) vs P²Net (ours: baseline)",
-                 "Zero-shot depth on the 7-Scenes test sequences, with post-processing", "tab:sevenscenes",
-                 ["The paper's Average row equals the frame-weighted mean of its scene rows (official test "
-                  "frame counts); compare it with our frame-weighted row."])
-
-
-def campus_table(results: Mapping[str, VariantResults]) -> Table | None:
-    """Campus Indoor per scene (tab:tab4, no PP) and the mean of the scene rows (tab:tab3)."""
-    a, b = results.get(OURS), results.get(P2NET)
-    if a is None or not a.scenes("campus"):
-        return None
-    rows: list[dict[str, Any]] = []
-
-    def pair(vals) -> dict[str, Any]:
-        out = {f"a_{m}": vals(a, m) for m in PAPER_NYU}
-        out |= {f"b_{m}": vals(b, m) if b is not None else None for m in PAPER_NYU}
-        return out | {"n": a.n_seeds}
-
-    for scene in a.scenes("campus"):
-        rows.append({"scene": scene, "images": a.scene_count("campus", scene),
-                     **pair(lambda r, m, s=scene: r.scene_values("campus", s, m))})
-    rows.append({"scene": "Average of scenes", "images": sum(a.scene_count("campus", s) or 0
-                                                            for s in a.scenes("campus")),
-                 **pair(lambda r, m: r.values("campus", m))})
-    rows.append(RULE)
-    pa, pb = published.campus_scenes("F²Depth"), published.campus_scenes("P²Net")
-    for ra, rb in zip(pa, pb):
-        rows.append({"scene": f"No. {ra['scene']}", "images": None, **{f"a_{m}": ra[m] for m in PAPER_NYU},
-                     **{f"b_{m}": rb[m] for m in PAPER_NYU}, "n": None, "quoted": True})
-    avg = {r["method"]: r for r in published.campus()}
-    rows.append({"scene": "Average of 18 scenes", "images": 99,
-                 **{f"a_{m}": avg["F²Depth"][m] for m in PAPER_NYU},
-                 **{f"b_{m}": avg["P²Net"][m] for m in PAPER_NYU}, "n": None, "quoted": True})
-    return Table("campus_scenes", rows, _pair_columns(PAPER_NYU, "F²Depth", "P²Net", "images"),
-                 "Campus Indoor per scene (zero-shot, no PP): F²Depth (ours: full) vs P²Net (ours: baseline)",
-                 "Zero-shot depth at the laser-measured points of Campus Indoor", "tab:campus",
-                 ["With the synthetic Campus stand-in, our scenes are not the paper's scenes No. 1-18."])
+    rows += [{"scene": label, count: n, **{f"a_{m}": ra[m] for m in spec.metrics},
+              **{f"b_{m}": rb[m] for m in spec.metrics}, "n": None, "quoted": True}
+             for label, n, ra, rb in spec.published()]  # fmt: skip
+    return Table(spec.stem, rows, _pair_columns(spec.metrics, "F²Depth", "P²Net", count), spec.title,
+                 spec.caption, spec.label, list(spec.notes))
 
 
 def inference_table(results: Mapping[str, VariantResults]) -> Table:
@@ -232,27 +190,33 @@ def inference_table(results: Mapping[str, VariantResults]) -> Table:
                  "Inference time per image", "tab:time")
 
 
+NUMBERS = ("no", "one", "two", "three", "four", "five", "six", "seven", "eight", "nine")
+
+
 def overview_table(results: Mapping[str, VariantResults]) -> Table:
-    """Every variant: all eight NYU metrics ± PP, and δ1 / AbsRel on 7-Scenes and Campus."""
+    """Every variant: all eight NYU metrics ± PP, and δ1 / AbsRel on every other registered test set."""
+    others = [p for p in registry.protocols() if p.name != "nyu"]
     rows: list[dict[str, Any]] = []
     for name, r in results.items():
         for pp in (False, True):
             s = "_pp" if pp else ""
             rows.append({"variant": name, "post_process": pp, **_ours(r, f"nyu{s}", METRIC_NAMES),
-                         "s7_abs_rel": r.values(f"sevenscenes{s}", "abs_rel"),
-                         "s7_a1": r.values(f"sevenscenes{s}", "a1"),
-                         "campus_abs_rel": r.values(f"campus{s}", "abs_rel"),
-                         "campus_a1": r.values(f"campus{s}", "a1")})
-    cols = [Column("variant", "Variant"), Column("post_process", "PP", align="c"), *metric_columns(),
-            Column("s7_abs_rel", "7-Scenes AbsRel↓"), Column("s7_a1", "7-Scenes δ<1.25↑"),
-            Column("campus_abs_rel", "Campus AbsRel↓"), Column("campus_a1", "Campus δ<1.25↑"), N_COLUMN]
-    return Table("variants_overview", rows, cols, "All variants: NYU (8 metrics), 7-Scenes and Campus",
-                 "Every ablation variant on the three test sets", "tab:variants",
-                 ["7-Scenes: mean over all test frames; Campus: mean of the scene rows."])
+                         **{f"{p.report.column}_{m}": r.values(f"{p.name}{s}", m) for p in others
+                            for m in ("abs_rel", "a1")}})  # fmt: skip
+    cols = [Column("variant", "Variant"), Column("post_process", "PP", align="c"), *metric_columns()]
+    for p in others:
+        cols += [Column(f"{p.report.column}_abs_rel", f"{p.title} AbsRel↓"),
+                 Column(f"{p.report.column}_a1", f"{p.title} δ<1.25↑")]
+    titles = [p.title for p in others]
+    names = ", ".join(titles[:-1]) + f" and {titles[-1]}" if len(titles) > 1 else "".join(titles)
+    return Table("variants_overview", rows, [*cols, N_COLUMN], f"All variants: NYU (8 metrics), {names}",
+                 f"Every ablation variant on the {NUMBERS[len(others) + 1]} test sets", "tab:variants",
+                 ["; ".join(f"{p.title}: {p.report.note}" for p in others) + "."])
 
 
 def build_tables(results: Mapping[str, VariantResults], epe: EPE) -> list[Table]:
     """Every table the evaluated variants allow, in the order of the README."""
-    tables = [table1(results), table5(results), table6(results, epe), sevenscenes_table(results),
-              campus_table(results), inference_table(results), overview_table(results)]
+    tables = [table1(results), table5(results), table6(results, epe),
+              *(scene_table(results, p) for p in registry.protocols()), inference_table(results),
+              overview_table(results)]
     return [t for t in tables if t is not None]

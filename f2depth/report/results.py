@@ -51,57 +51,41 @@ class VariantResults:
     def n_seeds(self) -> int:
         return len(self.seed_keys)
 
+    def _group(self, seed: str, group: str) -> dict[str, Any]:
+        """details.json's ``group`` (or ``timing``) of one seed; {} when absent."""
+        return self.details.get("seeds", {}).get(seed, {}).get(group) or {}
+
+    @staticmethod
+    def _every(values: list[Any]) -> list[float] | None:
+        return None if any(v is None for v in values) else [float(v) for v in values]
+
     def values(self, group: str, metric: str | None = None) -> list[float] | None:
         """Per-seed values of ``group.metric`` (or of the scalar ``group``, e.g. ``ms``); None if absent."""
-        out = []
-        for key in self.seed_keys:
-            node = self.metrics["per_seed"][key].get(group)
-            if metric is not None:
-                node = node.get(metric) if isinstance(node, dict) else None
-            if node is None:
-                return None
-            out.append(float(node))
-        return out
+        nodes = [self.metrics["per_seed"][key].get(group) for key in self.seed_keys]
+        if metric is not None:
+            nodes = [node.get(metric) if isinstance(node, dict) else None for node in nodes]
+        return self._every(nodes)
 
     def scene_values(self, group: str, scene: str, metric: str) -> list[float] | None:
         """Per-seed values of one scene row of ``group`` (``sevenscenes_pp``, ``campus`` …) from details."""
-        out = []
-        for key in self.seed_keys:
-            g = self.details.get("seeds", {}).get(key, {}).get(group)
-            if g is None or scene not in g.get("scenes", {}):
-                return None
-            out.append(float(g["scenes"][scene]["mean"][metric]))
-        return out
+        rows = [self._group(key, group).get("scenes", {}).get(scene, {}) for key in self.seed_keys]
+        return self._every([row.get("mean", {}).get(metric) for row in rows])
 
     def scene_mean_values(self, group: str, metric: str) -> list[float] | None:
         """Per-seed unweighted mean of the scene rows (the ``average`` of 7-Scenes / Campus results)."""
-        out = []
-        for key in self.seed_keys:
-            g = self.details.get("seeds", {}).get(key, {}).get(group)
-            if g is None or metric not in g.get("average", {}):
-                return None
-            out.append(float(g["average"][metric]))
-        return out
+        return self._every([self._group(key, group).get("average", {}).get(metric) for key in self.seed_keys])
 
     def scenes(self, group: str) -> list[str]:
         """Scene names of ``group`` in the first seed's order."""
-        if not self.seed_keys:
-            return []
-        g = self.details.get("seeds", {}).get(self.seed_keys[0], {}).get(group, {})
-        return list(g.get("scenes", {}))
+        return list(self._group(self.seed_keys[0], group).get("scenes", {})) if self.seed_keys else []
 
     def scene_count(self, group: str, scene: str) -> int | None:
-        if not self.seed_keys:
-            return None
-        g = self.details.get("seeds", {}).get(self.seed_keys[0], {}).get(group, {})
-        row = g.get("scenes", {}).get(scene)
+        row = self._group(self.seed_keys[0], group).get("scenes", {}).get(scene) if self.seed_keys else None
         return int(row["count"]) if row else None
 
     def timing(self, key: str = "ms") -> dict[str, Any]:
         """The first seed's timing record (device, threads, size) for ``ms`` or ``ms_pp``."""
-        if not self.seed_keys:
-            return {}
-        return self.details.get("seeds", {}).get(self.seed_keys[0], {}).get("timing", {}).get(key, {})
+        return self._group(self.seed_keys[0], "timing").get(key, {}) if self.seed_keys else {}
 
 
 def load_variant(name: str, metrics_dir: str | os.PathLike, eval_dir: str | os.PathLike) -> VariantResults:

@@ -70,8 +70,18 @@ def generate(cfg: SynthConfig, paths: OutputPaths, progress: bool = True) -> dic
     for r in results:
         by_ds.setdefault(r["dataset"], []).append(r)
 
-    # NYU labeled: one .mat from all labeled jobs, in index order, and the split
-    items = sorted((it for r in by_ds.get("nyu_labeled", []) for it in r["labeled"]), key=lambda it: it[0])
+    for name in plan.standins():  # the files a test set's stand-in has besides its frames
+        FINISH[name](cfg, paths, by_ds.get(name, []))
+    manifest = _manifest(cfg, by_ds)
+    write_json(paths.synth_gt / "manifest.json", manifest)
+    metrics = _metrics(cfg, by_ds, manifest, time.perf_counter() - t0)
+    metrics["stale_files_removed"] = removed
+    return metrics
+
+
+def _finish_labeled(cfg: SynthConfig, paths: OutputPaths, results: list[dict]) -> None:
+    """NYU labeled: one .mat from all labeled jobs, in index order, and the split."""
+    items = sorted((it for r in results for it in r["labeled"]), key=lambda it: it[0])
     images = plan.labeled_images(cfg)
     if [it[0] for it in items] != [im.index for im in images]:
         raise RuntimeError("labeled images missing from the job results")
@@ -87,18 +97,22 @@ def generate(cfg: SynthConfig, paths: OutputPaths, progress: bool = True) -> dic
     train = [im.index for im in images if not im.test]
     matfiles.write_splits(paths.nyu_splits, np.array(train), np.array(test))
 
-    # 7-Scenes split files, Campus points
+
+def _finish_sevenscenes(cfg: SynthConfig, paths: OutputPaths, results: list[dict]) -> None:
+    """7-Scenes: each scene's split files."""
     for scene, (test_seq, train_seq) in plan.sevenscenes_sequences(cfg).items():
         write_text(paths.sevenscenes / scene / "TestSplit.txt", "".join(f"sequence{q}\n" for q in test_seq))
         write_text(paths.sevenscenes / scene / "TrainSplit.txt", "".join(f"sequence{q}\n" for q in train_seq))
-    rows = sorted(p for r in by_ds.get("campus", []) for p in r["points"])
+
+
+def _finish_campus(cfg: SynthConfig, paths: OutputPaths, results: list[dict]) -> None:
+    """Campus: points.csv."""
+    rows = sorted(p for r in results for p in r["points"])
     write_text(paths.campus / "points.csv", writers.points_csv(rows))
 
-    manifest = _manifest(cfg, by_ds)
-    write_json(paths.synth_gt / "manifest.json", manifest)
-    metrics = _metrics(cfg, by_ds, manifest, time.perf_counter() - t0)
-    metrics["stale_files_removed"] = removed
-    return metrics
+
+FINISH = {"nyu_labeled": _finish_labeled, "sevenscenes": _finish_sevenscenes, "campus": _finish_campus}
+"""What each stand-in of :data:`f2depth.synth.plan.STANDINS` writes once all its jobs ran."""
 
 
 def _manifest(cfg: SynthConfig, by_ds: dict[str, list[dict]]) -> dict:

@@ -1,5 +1,7 @@
 """What to generate: scene and sequence names, the NYU labeled split, and one job per sequence or scene.
 
+The test sets' stand-ins are those ``f2depth.eval.registry`` names (:data:`STANDINS` has their jobs).
+
 Every random draw of a job comes from :func:`rng_for` keyed by the global seed and the job's names, so a
 job's output does not depend on which worker runs it or in which order.
 """
@@ -7,10 +9,12 @@ job's output does not depend on which worker runs it or in which order.
 from __future__ import annotations
 
 import zlib
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
+from f2depth.eval.registry import ENTRIES
 from f2depth.synth.config import SynthConfig
 from f2depth.synth.layout import CAMPUS_KINDS, NYU_KINDS, SEVENSCENES_NAMES
 
@@ -136,21 +140,47 @@ def animated_sequences(cfg: SynthConfig) -> list[str]:
     ]
 
 
-def jobs(cfg: SynthConfig) -> list[Job]:
-    """All jobs, most expensive first (a better balance over the workers)."""
-    out = [Job("nyu_raw", name, kind, name, cfg.nyu_raw_frames) for name, kind in nyu_raw_scenes(cfg)]
+def _labeled_jobs(cfg: SynthConfig) -> list[Job]:
     groups: dict[tuple[str, str], list[int]] = {}
     for im in labeled_images(cfg):
         groups.setdefault((im.scene, im.kind), []).append(im.index)
-    out += [Job("nyu_labeled", s, k, s, len(ix), tuple(ix)) for (s, k), ix in groups.items()]
-    for scene, (test, train) in sevenscenes_sequences(cfg).items():
-        out += [
-            Job("sevenscenes", scene, scene, f"seq-{q:02d}", cfg.sevenscenes_frames)
-            for q in sorted(test + train)
-        ]
-    out += [
-        Job("campus", s, k, s, len(imgs), tuple(imgs), cfg.campus_hw) for s, k, imgs in campus_scenes(cfg)
+    return [Job("nyu_labeled", s, k, s, len(ix), tuple(ix)) for (s, k), ix in groups.items()]
+
+
+def _sevenscenes_jobs(cfg: SynthConfig) -> list[Job]:
+    return [
+        Job("sevenscenes", scene, scene, f"seq-{q:02d}", cfg.sevenscenes_frames)
+        for scene, (test, train) in sevenscenes_sequences(cfg).items()
+        for q in sorted(test + train)
     ]
+
+
+def _campus_jobs(cfg: SynthConfig) -> list[Job]:
+    return [Job("campus", s, k, s, len(im), tuple(im), cfg.campus_hw) for s, k, im in campus_scenes(cfg)]
+
+
+STANDINS: dict[str, Callable[[SynthConfig], list[Job]]] = {
+    "nyu_labeled": _labeled_jobs,
+    "sevenscenes": _sevenscenes_jobs,
+    "campus": _campus_jobs,
+}
+"""The jobs of each synthetic stand-in of a test set, by the name the registry gives it."""
+
+
+def standins() -> list[str]:
+    """The stand-ins of the registered test sets, each once, in registry order."""
+    unknown = [e.standin for e in ENTRIES if e.standin not in STANDINS]
+    if unknown:
+        raise ValueError(f"f2depth/eval/registry.py names stand-ins {unknown} that f2depth.synth cannot "
+                         f"make; it makes {list(STANDINS)}")
+    return list(dict.fromkeys(e.standin for e in ENTRIES))  # test sets may share a stand-in
+
+
+def jobs(cfg: SynthConfig) -> list[Job]:
+    """All jobs, most expensive first (a better balance over the workers)."""
+    out = [Job("nyu_raw", name, kind, name, cfg.nyu_raw_frames) for name, kind in nyu_raw_scenes(cfg)]
+    for name in standins():
+        out += STANDINS[name](cfg)
     out += [
         Job("animated", s, "animated", s, cfg.animated_frames, (), cfg.animated_hw)
         for s in animated_sequences(cfg)
