@@ -6,6 +6,7 @@ from __future__ import annotations
 import csv
 import json
 import os
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -42,6 +43,7 @@ TINY = SynthConfig(
     animated_sequences=1,
     animated_frames=2,
     animated_hw=(96, 128),
+    flow_gt=True,
     sensor_effects=False,
 )
 
@@ -378,3 +380,26 @@ def test_regenerating_smaller_removes_the_stale_frames_only(tmp_path):
     seq = plan.animated_sequences(TINY)[0]
     for kind, n in (("clean", 2), ("final", 2), ("flow", 1), ("occlusions", 1)):
         assert len(list((paths.animated / "training" / kind / seq).iterdir())) == n
+
+
+def test_video_flow_side_cars_only_on_request(tiny, tmp_path):
+    """synth.flow_gt false (the default) leaves the flow out of the nyu_raw and 7-Scenes side-cars — most of
+    their disk — and changes nothing else: the same images, depth, poses and statistics; the animated set
+    keeps its flow (its .flo files are scored by flow_pretrain)."""
+    paths = OutputPaths.under(tmp_path / "raw")
+    lean = generate(replace(TINY, flow_gt=False), paths, progress=False)
+    for dataset in ("nyu_raw", "sevenscenes"):
+        files = sorted((paths.synth_gt / dataset).rglob("*.npz"))
+        assert files and all("flow" not in np.load(f).files and "occluded" not in np.load(f).files
+                             for f in files)
+        for f in files:
+            full = np.load(tiny.synth_gt / f.relative_to(paths.synth_gt))
+            np.testing.assert_array_equal(np.load(f)["depth"], full["depth"])
+            np.testing.assert_array_equal(np.load(f)["world_T_cam"], full["world_T_cam"])
+    assert any("flow" in np.load(f).files for f in (paths.synth_gt / "animated").rglob("*.npz"))
+    frame = next((paths.nyu_raw).rglob("*.ppm"))
+    assert frame.read_bytes() == (tiny.nyu_raw / frame.relative_to(paths.nyu_raw)).read_bytes()
+    full = json.loads((tiny.synth_gt / "manifest.json").read_text())
+    lean_manifest = json.loads((paths.synth_gt / "manifest.json").read_text())
+    assert lean_manifest["datasets"] == full["datasets"] and lean_manifest["params"]["flow_gt"] is False
+    assert lean["frames"] > 0

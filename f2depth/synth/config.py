@@ -13,8 +13,10 @@ from f2depth.params import ParamsError
 class SynthConfig:
     """Sizes of the generated sets. Defaults mirror params.yaml. ``compress_gt`` stores the side-car
     ground truth deflated on fine dyadic grids (2.6x smaller, slower to write; see
-    :mod:`f2depth.synth.writers`). ``sensor_effects`` False renders without noise, vignetting and
-    exposure changes (tests of the ground truth)."""
+    :mod:`f2depth.synth.writers`). ``flow_gt`` also stores each video frame's flow to the next frame and
+    its occlusion in the side-cars of ``nyu_raw`` and ``sevenscenes`` (the pipeline derives the flow of a
+    pair from depth and pose; the ``animated`` set always has its flow). ``sensor_effects`` False renders
+    without noise, vignetting and exposure changes (tests of the ground truth)."""
 
     seed: int = 0
     workers: int = 2
@@ -33,6 +35,7 @@ class SynthConfig:
     animated_frames: int = 8
     animated_hw: tuple[int, int] = (256, 320)
     compress_gt: bool = False
+    flow_gt: bool = False
     sensor_effects: bool = True
 
     def to_dict(self) -> dict[str, Any]:
@@ -80,6 +83,7 @@ class SynthConfig:
             animated_frames=get("animated.frames", int, 2),
             animated_hw=(get("animated.height", int, 32), get("animated.width", int, 32)),
             compress_gt=get("compress_gt", bool),
+            flow_gt=get("flow_gt", bool),
         )
 
 

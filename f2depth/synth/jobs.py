@@ -169,10 +169,13 @@ def _sequence(job: Job, cfg: SynthConfig, paths: OutputPaths, scene: Scene) -> d
 
 
 def _write_pair(job, cfg, paths, gt_dir, stem, depth, depth_next, poses, K, stats) -> None:
-    """Ground truth of a frame with a successor: flow + occlusion (and Sintel's .flo / occlusion png)."""
+    """Ground truth of a frame with a successor: flow + occlusion (in the side-car with ``flow_gt`` and always
+    for the animated set, which also gets Sintel's .flo / occlusion png)."""
     flow, z_next = rigid_flow(depth, K, relative_pose(poses[0], poses[1]))
     occ = occlusion(flow, z_next, depth_next)
-    writers.write_gt(gt_dir / f"{stem}.npz", depth, poses[0], K, flow, occ, cfg.compress_gt)
+    stored = cfg.flow_gt or job.dataset == "animated"
+    writers.write_gt(gt_dir / f"{stem}.npz", depth, poses[0], K, flow if stored else None,
+                     occ if stored else None, cfg.compress_gt)
     if job.dataset == "animated":
         writers.write_flo(paths.animated / "training" / "flow" / job.room / f"{stem}.flo", flow)
         writers.write_mask(paths.animated / "training" / "occlusions" / job.room / f"{stem}.png", occ)
