@@ -1,7 +1,9 @@
 """Atomic file output: nothing half-written survives a crash.
 
 Every writer goes to a temporary file in the destination folder and is renamed into place
-(``os.replace`` is atomic on POSIX and Windows within one file system).
+(``os.replace`` is atomic on POSIX and Windows within one file system). A folder output is built in a
+temporary sibling (:func:`atomic_dir`) and swapped in at the end: the previous good folder stays until the
+new one is complete.
 """
 
 from __future__ import annotations
@@ -9,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import shutil
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
@@ -47,6 +50,26 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
         os.replace(tmp_path, dest)
     except BaseException:
         tmp_path.unlink(missing_ok=True)
+        raise
+
+
+@contextlib.contextmanager
+def atomic_dir(path: str | os.PathLike) -> Iterator[Path]:
+    """Yield an empty temporary sibling folder of ``path``; on success it replaces ``path`` (two renames,
+    the old folder deleted last), on any error it is deleted and ``path`` is left as it was."""
+    dest = Path(path)
+    tmp = dest.parent / f".{dest.name}.tmp-{os.getpid()}"
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir(parents=True)
+    try:
+        yield tmp
+        old = dest.parent / f".{dest.name}.old-{os.getpid()}"
+        if dest.exists():
+            dest.rename(old)
+        tmp.rename(dest)
+        shutil.rmtree(old, ignore_errors=True)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
         raise
 
 

@@ -47,6 +47,7 @@ TINY: dict[str, object] = {
     "prepare.workers": 1,
     "keypoints.workers": 1,
     "keypoints.overlays": 1,
+    "poses.workers": 1,
     "flow_pretrain.height": 64,
     "flow_pretrain.width": 64,
     "flow_pretrain.raw_epochs": 1,
@@ -115,7 +116,7 @@ def test_dvc_repro_runs_every_stage_then_is_up_to_date(tmp_path):
 
     first = run([str(BIN / "dvc"), "repro"], repo, env, timeout=900)
     stages = yaml.safe_load((repo / "dvc.lock").read_text())["stages"]
-    expected = {"synth", "prepare", "keypoints", "flow_pretrain", "flow_figure", "tables",
+    expected = {"synth", "prepare", "keypoints", "poses", "flow_pretrain", "flow_figure", "tables",
                 *(f"flow_finetune@{loss}" for loss in params["flow_finetune"]["losses"]),
                 *(f"{stage}@{v}" for stage in ("train_depth", "evaluate") for v in params["variants"])}
     assert expected <= set(stages), sorted(expected - set(stages))

@@ -83,6 +83,43 @@ def test_stage_trains_every_seed_and_writes_outputs(setup, monkeypatch):
     assert not list((root / "ckpt" / "full").glob("*.pt"))  # resume states removed after success
 
 
+def test_a_failed_run_keeps_the_previous_models_and_a_new_one_replaces_them(setup, monkeypatch):
+    root, path = setup
+    monkeypatch.setenv("F2DEPTH_MLFLOW", "0")
+    torch.set_num_threads(1)
+    spec = importlib.util.spec_from_file_location("train_depth_stage", STAGE)
+    stage = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(stage)
+    argv = ["train_depth.py", "--variant", "baseline", "--params", str(path),
+            "--models", str(root / "models"), "--metrics", str(root / "metrics")]
+    stage.main(argv)
+    out = root / "models" / "depth_baseline"
+    before = {f.name: f.read_bytes() for f in out.iterdir()}
+    assert sorted(before) == ["model.pt", "seed1.pt", "seed3.pt"]
+
+    import f2depth.train.run as run_module
+    real_fit, calls = run_module.fit, []
+
+    def fit_that_dies_on_the_second_seed(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 2:
+            raise KeyboardInterrupt  # the user stops the run during seed 1
+        return real_fit(*args, **kwargs)
+
+    monkeypatch.setattr(run_module, "fit", fit_that_dies_on_the_second_seed)
+    with pytest.raises(KeyboardInterrupt):
+        stage.main(argv)
+    assert {f.name: f.read_bytes() for f in out.iterdir()} == before  # seed 3 was retrained, not swapped in
+    assert sorted(p.name for p in out.parent.iterdir()) == ["depth_baseline"]  # no temporary folder left
+
+    monkeypatch.setattr(run_module, "fit", real_fit)
+    params = yaml.safe_load(path.read_text())
+    params["train_depth"]["seeds"] = [3]
+    path.write_text(yaml.safe_dump(params))
+    stage.main(argv)
+    assert sorted(f.name for f in out.iterdir()) == ["model.pt", "seed3.pt"]  # the stale seed is gone
+
+
 def test_init_depth_setting(setup):
     _, path = setup
     p = P.load(path)

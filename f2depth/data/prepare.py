@@ -25,7 +25,6 @@ import io
 import multiprocessing
 import os
 import re
-import shutil
 import time
 import warnings
 from collections.abc import Sequence
@@ -41,7 +40,7 @@ from f2depth.data.errors import DataError
 from f2depth.data.images import INTERPOLATIONS, resize_rgb, write_rgb
 from f2depth.data.nyu_labeled import scenes_of_test_images
 from f2depth.data.nyu_raw import RawFrame, list_frames, list_scenes, read_frame
-from f2depth.io import imwrite, save_npz, write_json, write_text
+from f2depth.io import atomic_dir, imwrite, save_npz, write_json, write_text
 
 #: Superpixels larger than this many pixels take part in P²Net's planar loss (at 288×384).
 LARGE_SUPERPIXEL_PX = 1000
@@ -358,17 +357,10 @@ def prepare(
         warnings.warn(f"{len(short)} scene(s) have fewer than 3 sampled frames and give no frame tuple: "
                       f"{', '.join(short[:5])}", stacklevel=2)
 
-    tmp = out.parent / f".{out.name}.tmp-{os.getpid()}"
-    shutil.rmtree(tmp, ignore_errors=True)
-    tmp.mkdir(parents=True)
-    try:
+    with atomic_dir(out) as tmp:
         jobs = [_Job(t, tmp, config) for tasks in per_scene.values() for t in tasks]
         results = [r for r in _run_all(jobs, config.workers, progress) if r is not None]
         n_tuples, n_pairs = _write_tables(tmp, per_scene, config)
-        _swap_into_place(tmp, out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     stats = np.array([r[1:] for r in results], dtype=np.float64).reshape(-1, 3)
     mean = stats.mean(axis=0) if len(stats) else np.zeros(3)
     return {
@@ -388,11 +380,3 @@ def prepare(
         "seconds": round(time.perf_counter() - start, 2),
     }
 
-
-def _swap_into_place(tmp: Path, out: Path) -> None:
-    """Replace ``out`` by the finished ``tmp`` folder (two renames; the old set is deleted last)."""
-    old = out.parent / f".{out.name}.old-{os.getpid()}"
-    if out.exists():
-        out.rename(old)
-    tmp.rename(out)
-    shutil.rmtree(old, ignore_errors=True)

@@ -1,9 +1,19 @@
 """DepthModel: DepthCNN (ResNet encoder + depth decoder) and PoseCNN (6-channel ResNet + pose decoder).
 
-Pose convention (Monodepth2 / P²Net, research/p2net.md §6): the pose network sees two frames in
+Pose convention (Monodepth2's `layers.py`; P²Net's `trainer_geo.py`): the pose network sees two frames in
 temporal order ``[a, b]`` and ``predict_pose(img_a, img_b)`` returns ``b_T_a`` = T(t)·R(aa), the transform
 mapping camera-a points into camera b. With target 0 and sources ±1 the source-from-target transforms
 used for warping are ``1_T_0 = predict_pose(I0, I1)`` and ``-1_T_0 = predict_pose(I-1, I0, invert=True)``.
+
+Pose prior (``train_depth.pose_prior: geometric``, not in the paper): given a prior ``b_T_a`` of the pair
+(from multi-view geometry, ``f2depth.poses``), the pose is ``b_T_a = ΔT · prior`` with a residual
+``ΔT = T(t)·R(aa)`` — MonoIndoor's residual pose, composed on the left, i.e. expressed in camera b, the
+frame the prior maps into. The residual is PoseCNN's *second* output: Monodepth2's pose decoder predicts
+two sets of six numbers (``num_frames_to_predict_for = 2``) of which P²Net uses only the first. So one
+network serves both kinds of sample without a conflict: a pair with a prior gets ``ΔT·prior`` from the
+second output, a pair without one gets the first output's pose alone (the paper's PoseCNN). The ×0.01
+output scaling (Monodepth2's, P²Net's) keeps an untrained residual near the identity (a residual started
+exactly at the identity learned no better on the CPU default: docs/depth_training.md).
 """
 
 from __future__ import annotations
@@ -25,7 +35,7 @@ from f2depth.depth.decoder import UPSAMPLE_MODES, DepthDecoder, disp_to_depth, s
 from f2depth.depth.encoder import ResnetEncoder
 from f2depth.depth.pose import PoseDecoder
 from f2depth.depth.resnet import BLOCKS, load_imagenet_resnet
-from f2depth.geometry import pose_from_params
+from f2depth.geometry import invert_pose, pose_from_params
 from f2depth.io import torch_save
 
 CHECKPOINT_FORMAT = "f2depth.depth"
@@ -102,31 +112,46 @@ class DepthModel(nn.Module):
         return self.disp_to_depth(self.predict_disp(img))
 
     def forward(
-        self, img: torch.Tensor, pose_pairs: Sequence[tuple[torch.Tensor, torch.Tensor, bool]] = ()
+        self, img: torch.Tensor, pose_pairs: Sequence[tuple] = ()
     ) -> tuple[torch.Tensor, torch.Tensor, list[torch.Tensor]]:
         """One call for a training step (so DistributedDataParallel sees every parameter used).
 
-        img (B,3,H,W) target in [0, 1]; pose_pairs: (img_a, img_b, invert) per source, as
-        ``predict_pose`` → (sigmoid disp (B,1,H,W), depth (B,1,H,W) metres, [T (B,4,4) per pair]).
-        For inference use ``predict_depth``.
+        img (B,3,H,W) target in [0, 1]; pose_pairs: (img_a, img_b, invert) or (img_a, img_b, invert, prior,
+        prior_ok) per source, as ``predict_pose`` → (sigmoid disp (B,1,H,W), depth (B,1,H,W) metres,
+        [T (B,4,4) per pair]). For inference use ``predict_depth``.
         """
         disp = self.predict_disp(img)
-        poses = [self.predict_pose(a, b, invert=inv) for a, b, inv in pose_pairs]
+        poses = [self.predict_pose(a, b, inv, *rest) for a, b, inv, *rest in pose_pairs]
         return disp, self.disp_to_depth(disp), poses
 
     # -- pose ------------------------------------------------------------------------------------------
     def pose_params(self, img_a: torch.Tensor, img_b: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Frames a, b (B,3,H,W) in temporal order → (axis-angle (B,3), translation (B,3)) of b_T_a."""
-        axisangle, translation = self.pose_decoder(self.pose_encoder(torch.cat((img_a, img_b), dim=1)))
-        return axisangle[:, 0], translation[:, 0]
+        """Frames a, b (B,3,H,W) in temporal order → (axis-angle (B,2,3), translation (B,2,3)): index 0 is
+        PoseCNN's pose ``b_T_a``, index 1 the residual applied to a prior (module docstring)."""
+        return self.pose_decoder(self.pose_encoder(torch.cat((img_a, img_b), dim=1)))
 
-    def predict_pose(self, img_a: torch.Tensor, img_b: torch.Tensor, invert: bool = False) -> torch.Tensor:
+    def predict_pose(self, img_a: torch.Tensor, img_b: torch.Tensor, invert: bool = False,
+                     prior: torch.Tensor | None = None, prior_ok: torch.Tensor | None = None) -> torch.Tensor:
         """Frames a, b (B,3,H,W) in [0, 1], in temporal order → ``b_T_a`` (B,4,4) = T(t)·R(aa).
 
-        ``invert=True`` returns the exact inverse ``a_T_b`` (Monodepth2's ``invert`` for earlier sources).
+        ``prior`` (B,4,4) ``b_T_a`` and ``prior_ok`` (B,) bool (default: every row has one): rows with a
+        prior get ``ΔT · prior`` with ΔT from the second output, the others the first output's pose alone
+        (module docstring); the prior of a row without one is never read, so it may hold anything, NaN
+        included. ``invert=True`` returns the exact inverse ``a_T_b`` (Monodepth2's ``invert`` for earlier
+        sources).
         """
         axisangle, translation = self.pose_params(img_a, img_b)
-        return pose_from_params(axisangle, translation, invert=invert)
+        if prior is None:
+            return pose_from_params(axisangle[:, 0], translation[:, 0], invert=invert)
+        with torch.autocast(device_type=axisangle.device.type, enabled=False):  # compose in float32
+            aa, t = axisangle.float(), translation.float()
+            ok = prior_ok if prior_ok is not None else torch.ones(len(prior), dtype=torch.bool,
+                                                                  device=prior.device)
+            eye = torch.eye(4, dtype=torch.float32, device=prior.device)
+            safe = torch.where(ok[:, None, None], prior.float(), eye)  # no NaN reaches the gradients
+            T = torch.where(ok[:, None, None], pose_from_params(aa[:, 1], t[:, 1]) @ safe,
+                            pose_from_params(aa[:, 0], t[:, 0]))
+            return invert_pose(T) if invert else T
 
     # -- weights ---------------------------------------------------------------------------------------
     def set_initial_depth(self, depth: float) -> None:
@@ -207,7 +232,7 @@ def read_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
     if fmt != CHECKPOINT_FORMAT:
         raise ValueError(
             f"{path}: format {fmt!r} is not {CHECKPOINT_FORMAT!r}; this is not a DepthCNN/PoseCNN checkpoint"
-            " (flow models are 'f2depth.pwclite')"
+            " (flow models are 'f2depth.flow')"
         )
     version = ckpt.get("version")
     if version != CHECKPOINT_VERSION:

@@ -1,6 +1,6 @@
 """F²Depth's patch-based photometric loss for flow fine-tuning (the paper §3.1), computed the way ARFlow
-computes its own loss (ARFlow §3: the paper takes λ = 50 from ARFlow, whose photometric term is summed over
-output scales and both flow directions).
+computes its own loss (ARFlow's code, `losses/flow_loss.py`: the paper takes λ = 50 from ARFlow, whose
+photometric term is summed over output scales and both flow directions).
 
 For PWC-Lite's flows of a pair (frame 1 = target t, frame 2 = source s), five levels each, finest first,
 level i in pixels of its own grid, and with ``backward`` (ARFlow's ``with_bk``)::

@@ -1,5 +1,5 @@
-"""Depth training (DepthCNN + PoseCNN, SPEC §4.4): data, frozen flow teacher, one step, lr schedule, the
-epoch loop with checkpoints and resume, DDP helpers, per-epoch validation, and the per-variant runner.
+"""Depth training (DepthCNN + PoseCNN, the paper §3.2–3.4): data, frozen flow teacher, one step, lr schedule,
+the epoch loop with checkpoints and resume, DDP helpers, per-epoch validation, and the per-variant runner.
 
 Modules: ``augment`` (flip, colour jitter), ``data`` (TupleDataset, seeded order), ``teacher``
 (FlowTeacher), ``step`` (losses of one batch, train_step), ``schedule`` (LRSchedule), ``checkpoint``

@@ -1,4 +1,5 @@
-"""P²Net's training augmentation in plain torch (research/p2net.md §2): horizontal flip and colour jitter.
+"""P²Net's training augmentation in plain torch (P²Net's `datasets/nyu_dataset.py`): horizontal flip and
+colour jitter.
 
 * Flip (p = 0.5): every frame of a sample, the superpixel labels and the keypoints are mirrored
   (x → W−1−x) and so is the principal point, ``cx' = W−1−cx`` (pixel centres at integers). P²Net and
@@ -85,6 +86,13 @@ def flip_intrinsics(K: torch.Tensor, width: int) -> torch.Tensor:
     out = K.clone()
     out[0, 2] = (width - 1) - K[0, 2]
     return out
+
+
+def flip_pose(T: torch.Tensor) -> torch.Tensor:
+    """A relative pose ``tgt_T_src`` (..., 4, 4) between mirrored images: F·T·F with F = diag(−1, 1, 1, 1)
+    (the mirrored image is the camera's view of the world reflected in its x axis)."""
+    F = torch.diag(torch.tensor([-1.0, 1.0, 1.0, 1.0], dtype=T.dtype, device=T.device))
+    return F @ T @ F
 
 
 # ---- colour ----------------------------------------------------------------------------------------

@@ -5,11 +5,14 @@ An item is a dict of tensors (collated by the default DataLoader collate):
 * ``target``, ``prev``, ``next`` (3,H,W) float32 RGB in [0, 1] — un-augmented (flipped if the sample is
   flipped): they feed the losses and the frozen flow network;
 * ``target_aug``, ``prev_aug``, ``next_aug`` (3,H,W) — colour-jittered copies: they feed the depth and
-  pose networks (P²Net, research/p2net.md §2);
+  pose networks (P²Net's `datasets/nyu_dataset.py`);
 * ``points`` (N,2) int64 x first — the target's DSO keypoints, filled up with uniform random pixels to
   ``num_points`` (P²Net §3.2); ``points_real`` (N,) bool marks the keypoints;
 * ``segments`` (H,W) int64 Felzenszwalb labels; ``K`` (3,3) float32 (mirrored with the sample);
-* ``index`` int64, ``flipped`` bool.
+* ``index`` int64, ``flipped`` bool;
+* with pose priors (``train_depth.pose_prior: geometric``): ``prior_prev``, ``prior_next`` (4,4) float32 —
+  ``prev_T_target`` and ``next_T_target`` from multi-view geometry (``f2depth.poses``), mirrored with the
+  sample; the identity where the pair has no reliable prior — and ``prior_prev_ok``, ``prior_next_ok`` bool.
 
 Reproducibility: the augmentation and the fill-up points of item ``i`` in epoch ``e`` are drawn from
 generators seeded with ``(seed, e, i)`` only (``sample_seed``), so they do not depend on worker
@@ -27,6 +30,7 @@ from torch.utils.data import Dataset
 
 from f2depth.data.prepared import PreparedSet
 from f2depth.keypoints import KeypointFile, fill_up
+from f2depth.poses.store import PosePriors
 from f2depth.train import augment as A
 
 #: Streams derived from (seed, epoch, index): augmentation, fill-up points and the epoch's order are
@@ -63,7 +67,7 @@ class TupleDataset(Dataset):
     primary accessor; ``ds[i]`` is ``item(i, epoch=0)``."""
 
     def __init__(self, prepared: PreparedSet | str | os.PathLike, keypoints: KeypointFile | str | os.PathLike,
-                 config: DataConfig, seed: int = 0) -> None:
+                 config: DataConfig, seed: int = 0, priors: PosePriors | None = None) -> None:
         self.prepared = prepared if isinstance(prepared, PreparedSet) else PreparedSet(prepared)
         self.keypoints = keypoints if isinstance(keypoints, KeypointFile) else KeypointFile(keypoints)
         if not self.prepared.tuples:
@@ -82,6 +86,9 @@ class TupleDataset(Dataset):
                              f"{missing[0]}); the file does not belong to {self.prepared.root}: re-run "
                              "`dvc repro keypoints`")
         self.keypoints.check_inside(self.height, self.width)  # never clamp stray points silently
+        if priors is not None:
+            priors.check_covers([t.tuple_id for t in self.prepared.tuples])
+        self.priors = priors
 
     def __len__(self) -> int:
         return len(self.prepared.tuples)
@@ -112,7 +119,18 @@ class TupleDataset(Dataset):
             "points": points, "points_real": real,
             "segments": segments.contiguous(), "K": K,
             "index": torch.tensor(index, dtype=torch.int64), "flipped": torch.tensor(flipped),
+            **self._prior(t.tuple_id, flipped),
         }  # fmt: skip
+
+    def _prior(self, tuple_id: str, flipped: bool) -> dict[str, torch.Tensor]:
+        if self.priors is None:
+            return {}
+        p = self.priors[tuple_id]
+        T_prev, T_next = torch.from_numpy(p.T_prev), torch.from_numpy(p.T_next)
+        if flipped:
+            T_prev, T_next = A.flip_pose(T_prev), A.flip_pose(T_next)
+        return {"prior_prev": T_prev, "prior_next": T_next, "prior_prev_ok": torch.tensor(p.prev_ok),
+                "prior_next_ok": torch.tensor(p.next_ok)}
 
 
 class EpochView(Dataset):

@@ -11,6 +11,8 @@ epoch also measures, on the training tuples, without augmentation:
   transforms (``1_T_0`` and ``-1_T_0``); ``pose_rot_true`` / ``pose_rot_pred``: the mean rotation angles;
 * ``pose_trans_cos``: mean cosine between the predicted and the true translation directions (1 = right
   direction; the scale is free in monocular training).
+With pose priors (``train_depth.pose_prior: geometric``) the poses measured are those the losses use:
+PoseCNN's residual composed with the prior (PoseCNN alone for pairs without one).
 
 ``constant_depth_metrics`` gives the validation metrics of a constant depth map: with per-image median
 scaling that is what a network scores when it has learned nothing (see docs/depth_training.md).
@@ -28,7 +30,9 @@ from torch import nn
 from f2depth.data.prepared import PreparedSet
 from f2depth.eval.metrics import EmptyMaskError, aggregate, image_metrics
 from f2depth.geometry import relative_pose
+from f2depth.poses.store import PosePriors
 from f2depth.train.data import to_tensor
+from f2depth.train.step import pose_priors
 from f2depth.train.validate import evaluating
 
 #: Keys ``diagnose`` returns (history.csv columns and MLflow metrics).
@@ -41,7 +45,9 @@ class TrainTruth:
     """Ground truth of the training tuples.
 
     target, prev, next (N,3,H,W) float32 RGB in [0, 1]; depth (N,H,W) float32 metres (0 = invalid);
-    T_prev, T_next (N,4,4) float64: the true ``-1_T_0`` and ``1_T_0`` (target camera → source camera).
+    T_prev, T_next (N,4,4) float64: the true ``-1_T_0`` and ``1_T_0`` (target camera → source camera);
+    priors: None, or [(prior, ok)] of the pairs ``[I-1, I0]`` and ``[I0, I1]`` as ``step.pose_priors`` gives
+    them: the priors ``0_T_-1``, ``1_T_0`` (N,4,4) float32 that PoseCNN refines and their flags (N,).
     """
 
     target: torch.Tensor
@@ -50,12 +56,14 @@ class TrainTruth:
     depth: np.ndarray
     T_prev: torch.Tensor
     T_next: torch.Tensor
+    priors: list[tuple[torch.Tensor, torch.Tensor]] | None = None
 
     def __len__(self) -> int:
         return int(self.target.shape[0])
 
     @classmethod
-    def from_prepared(cls, prepared: PreparedSet, max_tuples: int | None = None) -> TrainTruth | None:
+    def from_prepared(cls, prepared: PreparedSet, max_tuples: int | None = None,
+                      priors: PosePriors | None = None) -> TrainTruth | None:
         """Tuples whose three frames have ground truth (at most ``max_tuples``, evenly spread), or None."""
         tuples = [t for t in prepared.tuples if all(prepared.has_gt(f) for f in (t.target, t.prev, t.next))]
         if not tuples:
@@ -68,11 +76,18 @@ class TrainTruth:
         img = {f: to_tensor(prepared.image(f)) for f in fids}
         gt = {f: prepared.gt(f) for f in fids}
         world = {f: torch.from_numpy(gt[f][1]) for f in fids}
+        prior = None
+        if priors is not None:
+            p = [priors[t.tuple_id] for t in tuples]
+            prior = pose_priors({"prior_prev": torch.from_numpy(np.stack([x.T_prev for x in p])),
+                                 "prior_next": torch.from_numpy(np.stack([x.T_next for x in p])),
+                                 "prior_prev_ok": torch.tensor([x.prev_ok for x in p]),
+                                 "prior_next_ok": torch.tensor([x.next_ok for x in p])})
         return cls(
             torch.stack([img[t.target] for t in tuples]), torch.stack([img[t.prev] for t in tuples]),
             torch.stack([img[t.next] for t in tuples]), np.stack([gt[t.target][0] for t in tuples]),
             torch.stack([relative_pose(world[t.target], world[t.prev]) for t in tuples]),
-            torch.stack([relative_pose(world[t.target], world[t.next]) for t in tuples]),
+            torch.stack([relative_pose(world[t.target], world[t.next]) for t in tuples]), prior,
         )
 
 
@@ -120,9 +135,11 @@ def diagnose(model: nn.Module, truth: TrainTruth, device: torch.device | str = "
     with evaluating(model):
         for s in range(0, len(truth), batch_size):
             tgt, prv, nxt = (x[s:s + batch_size].to(device) for x in (truth.target, truth.prev, truth.next))
+            pp, pn = ([tuple(x[s:s + batch_size].to(device) for x in pair) for pair in truth.priors]
+                      if truth.priors is not None else ((), ()))
             depths.append(model.predict_depth(tgt)[:, 0].float().cpu().numpy())
-            T_prev.append(model.predict_pose(prv, tgt, invert=True).cpu())
-            T_next.append(model.predict_pose(tgt, nxt).cpu())
+            T_prev.append(model.predict_pose(prv, tgt, True, *pp).cpu())
+            T_next.append(model.predict_pose(tgt, nxt, False, *pn).cpu())
     cfg = model.config
     out = depth_accuracy(np.concatenate(depths), truth.depth, cfg.min_depth, cfg.max_depth)
     out.update(pose_errors(torch.cat(T_prev + T_next), torch.cat([truth.T_prev, truth.T_next])))

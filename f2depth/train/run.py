@@ -23,7 +23,8 @@ from f2depth import tracking
 from f2depth.data.errors import DataError
 from f2depth.data.prepared import PreparedSet
 from f2depth.depth import DepthModel, DepthModelConfig, save_checkpoint
-from f2depth.io import atomic_path, write_json
+from f2depth.io import atomic_dir, write_json
+from f2depth.poses.store import PosePriors
 from f2depth.train import checkpoint as ckpt
 from f2depth.train.data import DataConfig, TupleDataset
 from f2depth.train.diagnostics import DIAGNOSTIC_KEYS, TrainTruth, constant_depth_metrics, diagnose
@@ -44,7 +45,8 @@ def run_fingerprint(s: TrainSettings, seed: int) -> str:
     settings = {k: v for k, v in s.as_dict().items() if k not in ignored}
     settings["seed"] = seed
     files = {"tuples": Path(s.prepared) / "tuples.csv", "camera": Path(s.prepared) / "camera.json",
-             "keypoints": s.keypoints_file, "flow_model": s.flow_model, "imagenet": s.imagenet_weights}
+             "keypoints": s.keypoints_file, "flow_model": s.flow_model, "imagenet": s.imagenet_weights,
+             "pose_priors": Path(s.poses) / "priors.json" if s.poses else None}
     return ckpt.fingerprint(settings, files)
 
 
@@ -86,11 +88,13 @@ def train_variant(
     t0 = time.perf_counter()
     prepared = PreparedSet(s.prepared)
     h, w = prepared.hw
-    dataset = TupleDataset(prepared, s.keypoints_file, DataConfig(num_points=s.num_points, augment=s.augment))
+    priors = PosePriors(s.poses) if s.pose_prior == "geometric" else None
+    dataset = TupleDataset(prepared, s.keypoints_file, DataConfig(num_points=s.num_points, augment=s.augment),
+                           priors=priors)
     teacher = FlowTeacher.load(s.flow_model, ctx.device) if s.flow_model else None
     validator = make_validator(s.nyu_labeled, s.nyu_splits, h, w, ctx.device, gt=s.val_gt, crop=s.val_crop,
                                max_images=s.val_max_images) if ctx.is_main else None
-    truth = (TrainTruth.from_prepared(prepared, s.diagnostic_tuples)
+    truth = (TrainTruth.from_prepared(prepared, s.diagnostic_tuples, priors)
              if ctx.is_main and s.diagnostic_tuples > 0 else None)
     floor = constant_depth_metrics(validator) if validator is not None else {}
     step_config = StepConfig(weights=s.weights, min_area=scaled_min_area(h, w), amp=s.amp)
@@ -102,47 +106,56 @@ def train_variant(
                  list(schedule.phases), s.flow_model or "none (P²Net baseline)", s.weights,
                  (f"ImageNet init from {s.imagenet_weights}" if s.imagenet_weights
                   else "random init (no ImageNet weights: allow_random_init)")
-                 + (f", initial depth {s.init_depth} m" if s.init_depth is not None else ""))
-        if out_dir.exists():
-            shutil.rmtree(out_dir)  # stale seeds of an earlier run must not survive
-        out_dir.mkdir(parents=True)
-    per_seed: list[dict[str, Any]] = []
-    main_history: list[dict[str, Any]] = []
-    for seed in s.seeds:
-        dataset.seed = seed
-        seed_everything(seed)
-        model = DepthModel(DepthModelConfig(height=h, width=w))
-        if s.imagenet_weights:
-            model.load_imagenet(s.imagenet_weights)
-        if s.init_depth is not None:
-            model.set_initial_depth(s.init_depth)
-        state_file = Path(s.checkpoint_dir) / s.variant / f"seed{seed}.pt"
-        run_ctx = (tracking.stage_run("train_depth", params or {}, variant=s.variant)
-                   if ctx.is_main else contextlib.nullcontext(tracking.StageRun()))
-        with run_ctx as run:
-            run.set_tags({"seed": seed})
-            run.log_params({"effective": {**weights_dict(s), "flow_model": s.flow_model, "seed": seed,
-                                          "lambda_sources": s.lambda_sources}})
-            result = fit(
-                model, dataset, teacher, step_config,
-                LoopConfig(s.epochs, s.batch_size, schedule, seed=seed, workers=s.workers, sync_bn=s.sync_bn,
-                           progress=progress),
-                ctx=ctx, checkpoint=state_file, resume=resume, fingerprint=run_fingerprint(s, seed),
-                validate=_measure(validator, truth, ctx.device),
-                on_epoch=lambda row, run=run: run.log_metrics(
-                    {k: v for k, v in row.items() if k != "epoch" and v is not None}, step=int(row["epoch"])),
-            )  # fmt: skip
-            summary = {"seed": seed, **_summary(result)}
-            if ctx.is_main:
-                if result.resumed_from:
-                    log.info("seed %d: resumed after epoch %d (%s)", seed, result.resumed_from, state_file)
-                save_checkpoint(out_dir / f"seed{seed}.pt", model, params=s.as_dict(), variant=s.variant,
-                                seed=seed, history=result.history)
-                run.log_metrics({f"final_{k}": v for k, v in summary["final_losses"].items()})
-        per_seed.append(summary)
-        if seed == s.seeds[0]:
-            main_history = result.history
-        barrier(ctx)
+                 + (f", initial depth {s.init_depth} m" if s.init_depth is not None else "")
+                 + (f", PoseCNN refines the geometric pose priors of {s.poses} ({priors.reliable_share:.0%} "
+                    "of the pairs have one)" if priors is not None else ""))
+    # built in a temporary sibling and swapped in when complete: a failed run keeps the previous models, and
+    # stale seeds of an earlier run do not survive a successful one
+    with atomic_dir(out_dir) if ctx.is_main else contextlib.nullcontext(out_dir) as build_dir:
+        per_seed: list[dict[str, Any]] = []
+        main_history: list[dict[str, Any]] = []
+        for seed in s.seeds:
+            dataset.seed = seed
+            seed_everything(seed)
+            model = DepthModel(DepthModelConfig(height=h, width=w))
+            if s.imagenet_weights:
+                model.load_imagenet(s.imagenet_weights)
+            if s.init_depth is not None:
+                model.set_initial_depth(s.init_depth)
+            state_file = Path(s.checkpoint_dir) / s.variant / f"seed{seed}.pt"
+            run_ctx = (tracking.stage_run("train_depth", params or {}, variant=s.variant)
+                       if ctx.is_main else contextlib.nullcontext(tracking.StageRun()))
+            with run_ctx as run:
+                run.set_tags({"seed": seed})
+                run.log_params({"effective": {**weights_dict(s), "flow_model": s.flow_model, "seed": seed,
+                                              "lambda_sources": s.lambda_sources}})
+                result = fit(
+                    model, dataset, teacher, step_config,
+                    LoopConfig(s.epochs, s.batch_size, schedule, seed=seed, workers=s.workers,
+                               sync_bn=s.sync_bn, progress=progress),
+                    ctx=ctx, checkpoint=state_file, resume=resume, fingerprint=run_fingerprint(s, seed),
+                    validate=_measure(validator, truth, ctx.device),
+                    on_epoch=lambda row, run=run: run.log_metrics(
+                        {k: v for k, v in row.items() if k != "epoch" and v is not None},
+                        step=int(row["epoch"])),
+                )  # fmt: skip
+                summary = {"seed": seed, **_summary(result)}
+                if ctx.is_main:
+                    if result.resumed_from:
+                        log.info("seed %d: resumed after epoch %d (%s)", seed, result.resumed_from,
+                                 state_file)
+                    save_checkpoint(build_dir / f"seed{seed}.pt", model, params=s.as_dict(),
+                                    variant=s.variant, seed=seed, history=result.history)
+                    run.log_metrics({f"final_{k}": v for k, v in summary["final_losses"].items()})
+            per_seed.append(summary)
+            if seed == s.seeds[0]:
+                main_history = result.history
+            barrier(ctx)
+        if ctx.is_main:  # model.pt: a hard link where possible, no second copy
+            try:
+                os.link(build_dir / f"seed{s.seeds[0]}.pt", build_dir / "model.pt")
+            except OSError:
+                shutil.copyfile(build_dir / f"seed{s.seeds[0]}.pt", build_dir / "model.pt")
     metrics = {
         "variant": s.variant, "flow_model": s.flow_model, "weights": weights_dict(s),
         "lambda_sources": s.lambda_sources, "epochs": s.epochs, "batch_size": s.batch_size,
@@ -156,12 +169,6 @@ def train_variant(
     if ctx.is_main:
         for seed in s.seeds:
             (Path(s.checkpoint_dir) / s.variant / f"seed{seed}.pt").unlink(missing_ok=True)
-        with atomic_path(out_dir / "model.pt") as tmp:  # a hard link where possible: no second copy
-            tmp.unlink()
-            try:
-                os.link(out_dir / f"seed{s.seeds[0]}.pt", tmp)
-            except OSError:
-                shutil.copyfile(out_dir / f"seed{s.seeds[0]}.pt", tmp)
         write_history(history_file, main_history)
         write_json(metrics_file, metrics)
         if validator is not None:

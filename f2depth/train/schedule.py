@@ -1,6 +1,6 @@
 """The paper's piecewise-constant learning rate, scaled to the epoch count of a run.
 
-F²Depth (SPEC §2): 1e-4 for 27 epochs, 1e-5 for the next 15, 1e-6 for the last 2 (44 epochs);
+F²Depth (the paper §4.1): 1e-4 for 27 epochs, 1e-5 for the next 15, 1e-6 for the last 2 (44 epochs);
 ``train_depth.lr`` holds the rates and ``train_depth.lr_epochs`` the epochs spent at each. When a run has a
 different number of epochs the phase boundaries are scaled proportionally and rounded:
 

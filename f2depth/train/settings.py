@@ -1,7 +1,7 @@
 """Everything one ``train_depth`` variant needs, resolved from params.yaml into a frozen dataclass.
 
-Variants (params ``variants.<name>``, SPEC §1): ``flow_model`` (path of the frozen flow network, or null
-for the P²Net baseline without flow losses), ``rigid_from`` / ``feature_from`` (the YAML file that
+Variants (params ``variants.<name>``, docs/method.md §1): ``flow_model`` (path of the frozen flow network,
+or null for the P²Net baseline without flow losses), ``rigid_from`` / ``feature_from`` (the YAML file that
 ``lambda_rigid`` / ``lambda3`` are read from: ``params.yaml`` for the user's value, or
 ``configs/ablation_off.yaml`` (both 0) to switch the term off), and ``dep_flow_model`` / ``dep_flow_code``
 (what DVC tracks for the variant, see dvc.yaml). The name ``params.yaml`` in ``*_from`` means the
@@ -23,6 +23,9 @@ from f2depth.depth.decoder import sigmoid_input_for_depth
 from f2depth.losses import LossWeights
 
 PARAMS_NAME = "params.yaml"
+#: train_depth.pose_prior: none = the paper's PoseCNN; geometric = PoseCNN refines a prior from multi-view
+#: geometry (the ``poses`` stage, f2depth.poses), a residual pose as MonoIndoor's (f2depth.depth.model)
+POSE_PRIORS = ("none", "geometric")
 
 
 @dataclass(frozen=True)
@@ -50,6 +53,8 @@ class TrainSettings:
     val_max_images: int | None = 20
     sync_bn: bool = True
     amp: bool = False
+    pose_prior: str = "none"  # none (the paper) | geometric (PoseCNN refines f2depth.poses' priors)
+    poses: str | None = None  # data.poses: the pose-prior folder, read when pose_prior is geometric
     device: str = "auto"
     checkpoint_dir: str = "tmp/train_depth"
     diagnostic_tuples: int = 64
@@ -106,6 +111,10 @@ def settings_from_params(params: dict[str, Any], variant: str) -> TrainSettings:
     amp = P.get(params, "train_depth.amp")
     if not isinstance(amp, bool):
         raise P.ParamsError(f"{path}: train_depth.amp must be true or false, got {amp!r}")
+    pose_prior = td.get("pose_prior", "none")
+    if pose_prior not in POSE_PRIORS:
+        raise P.ParamsError(f"{path}: train_depth.pose_prior must be one of {', '.join(POSE_PRIORS)}, "
+                            f"got {pose_prior!r}")
     seeds = td.get("seeds", [0])
     seeds = tuple(int(s) for s in (seeds if isinstance(seeds, list) else [seeds]))
     if not seeds or len(set(seeds)) != len(seeds):
@@ -145,6 +154,8 @@ def settings_from_params(params: dict[str, Any], variant: str) -> TrainSettings:
         val_max_images=None if val_max is None else int(val_max),
         sync_bn=bool(td.get("sync_bn", True)),
         amp=amp,
+        pose_prior=pose_prior,
+        poses=str(P.get(params, "data.poses")) if pose_prior == "geometric" else None,
         device=str(params.get("device", "auto")),
         checkpoint_dir=str(td.get("checkpoint_dir", "tmp/train_depth")),
         diagnostic_tuples=int(td.get("diagnostic_tuples", 64)),

@@ -3,8 +3,11 @@
 Conventions (Monodepth2 / P²Net, ``f2depth.depth.model``): the pose network sees ``[I−1, I0]`` and
 ``[I0, I+1]`` (colour-augmented); the source-from-target transforms used for warping are
 ``T−1 = −1_T_0 = predict_pose(I−1, I0, invert=True)`` and ``T+1 = 1_T_0 = predict_pose(I0, I+1)``.
+With pose priors in the batch (``train_depth.pose_prior: geometric``) PoseCNN refines them: the prior of
+``[I−1, I0]`` is ``0_T_−1 = (prior_prev)⁻¹``, that of ``[I0, I+1]`` is ``prior_next``; a sample whose flag is
+False gets PoseCNN's own pose (``DepthModel.predict_pose`` chooses per sample with ``torch.where``).
 
-Terms (SPEC §4.4), all on the un-augmented frames:
+Terms (the paper §3.2–3.4), all on the un-augmented frames:
   ph      P²Net's patch photometric loss, minimum over the two sources;
   sm      edge-aware smoothness of the mean-normalised sigmoid disparity;
   spp     planar loss over superpixels larger than P²Net's 1000 px at 288×384, scaled by image area;
@@ -28,7 +31,7 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
-from f2depth.geometry import rigid_flow
+from f2depth.geometry import invert_pose, rigid_flow
 from f2depth.losses import (
     LossWeights,
     NonFiniteLossError,
@@ -39,6 +42,7 @@ from f2depth.losses import (
     rigid_flow_loss,
     total_loss,
 )
+from f2depth.precision import autocast, full_precision
 from f2depth.train.teacher import FlowTeacher, TeacherOutput
 
 #: P²Net's superpixel size threshold (pixels at 288×384).
@@ -75,13 +79,19 @@ def batch_to(batch: dict[str, torch.Tensor], device: torch.device | str) -> dict
     return {k: v.to(device, non_blocking=non_blocking) for k, v in batch.items()}
 
 
-def amp_dtype(device: torch.device | str) -> torch.dtype:
-    """The autocast dtype of mixed precision: float16 on CUDA (with loss scaling), bfloat16 elsewhere."""
-    return torch.float16 if torch.device(device).type == "cuda" else torch.bfloat16
-
-
-def _autocast(device: torch.device, enabled: bool):
-    return torch.autocast(device_type=device.type, dtype=amp_dtype(device)) if enabled else nullcontext()
+def pose_priors(batch: dict[str, torch.Tensor]) -> list[tuple[torch.Tensor, torch.Tensor]] | None:
+    """[(prior, ok)] of PoseCNN's two pairs: the priors ``0_T_−1`` and ``1_T_0`` (B,4,4) float32 — the
+    identity where a sample's flag ``prior_*_ok`` (B,) is False — with those flags; None when the batch has
+    no priors (module docstring)."""
+    if "prior_next" not in batch:
+        return None
+    eye = torch.eye(4, dtype=torch.float32, device=batch["prior_next"].device)
+    out = []
+    for key, invert in (("prior_prev", True), ("prior_next", False)):
+        ok = batch[f"{key}_ok"].bool()
+        T = torch.where(ok[:, None, None], batch[key].float(), eye)
+        out.append((invert_pose(T) if invert else T, ok))
+    return out
 
 
 def network_forward(model: nn.Module, batch: dict[str, torch.Tensor], amp: bool = False) -> NetOutput:
@@ -92,7 +102,10 @@ def network_forward(model: nn.Module, batch: dict[str, torch.Tensor], amp: bool 
     core = model.module if hasattr(model, "module") else model
     device = batch["target_aug"].device
     pairs = [(batch["prev_aug"], batch["target_aug"], True), (batch["target_aug"], batch["next_aug"], False)]
-    with _autocast(device, amp):
+    priors = pose_priors(batch)
+    if priors is not None:
+        pairs = [(*pair, *prior) for pair, prior in zip(pairs, priors)]
+    with autocast(device, amp):
         disp, _, poses = model(batch["target_aug"], pairs)
     disp = disp.float()
     return NetOutput(disp, core.disp_to_depth(disp), poses[0].float(), poses[1].float())
@@ -103,7 +116,7 @@ def teacher_forward(teacher: FlowTeacher | None, batch: dict[str, torch.Tensor],
     """The frozen network's flow target → +1 (and pyramids) on the un-augmented frames, or None."""
     if teacher is None:
         return None
-    with _autocast(batch["target"].device, amp):
+    with autocast(batch["target"].device, amp):
         return teacher(batch["target"], batch["next"], features=features)
 
 
@@ -112,7 +125,7 @@ def loss_terms(net: NetOutput, batch: dict[str, torch.Tensor], flow: TeacherOutp
     """The scalar loss terms (float32, autocast off); see the module docstring."""
     w = config.weights
     device = net.depth.device
-    ctx = torch.autocast(device_type=device.type, enabled=False) if config.amp else nullcontext()
+    ctx = full_precision(device) if config.amp else nullcontext()
     with ctx:
         target, K = batch["target"].float(), batch["K"].float()
         terms = {
