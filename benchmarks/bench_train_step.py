@@ -27,13 +27,13 @@ from f2depth.flow import PWCLite
 from f2depth.io import imwrite, write_json, write_text
 from f2depth.keypoints import save_keypoints
 from f2depth.losses import LossWeights, total_loss
+from f2depth.superpixels import scaled_min_area
 from f2depth.train.data import DataConfig, TupleDataset
 from f2depth.train.step import (
     StepConfig,
     batch_to,
     loss_terms,
     network_forward,
-    scaled_min_area,
     teacher_forward,
 )
 from f2depth.train.teacher import FlowTeacher

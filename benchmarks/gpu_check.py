@@ -62,13 +62,13 @@ from f2depth.io import write_json, write_text  # noqa: E402
 from f2depth.keypoints.store import KeypointFile  # noqa: E402
 from f2depth.losses import LossWeights  # noqa: E402
 from f2depth.precision import autocast, grad_scaler  # noqa: E402
+from f2depth.superpixels import scaled_min_area  # noqa: E402
 from f2depth.train.data import DataConfig, TupleDataset  # noqa: E402
 from f2depth.train.settings import settings_from_params  # noqa: E402
 from f2depth.train.step import (  # noqa: E402
     StepConfig,
     batch_to,
     compute_loss,
-    scaled_min_area,
     teacher_forward,
     train_step,
 )

@@ -1,5 +1,6 @@
 """Colour operations on RGB tensors ``(...,3,H,W)`` in [0, 1]: grey, HSV and the four colour-jitter
-adjustments, shared by the depth training's and the flow fine-tuning's augmentation.
+adjustments, shared by the depth training's and the flow fine-tuning's augmentation; and the Middlebury
+colour coding of flow fields (:func:`flow_to_color`, Baker et al., IJCV 2011) for every flow picture.
 
 Two sets of grey weights, both kept because the code each part inherits uses its own:
 
@@ -16,6 +17,7 @@ HSV hue rotated by ``f`` turns; every result clipped to [0, 1].
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 
 GREY_PIL = (0.299, 0.587, 0.114)
@@ -77,3 +79,49 @@ def adjust(img: torch.Tensor, op: str, factor: float,
     else:
         raise ValueError(f"unknown colour operation {op!r} (one of {', '.join(JITTER_OPS)})")
     return out.clamp(0.0, 1.0)
+
+
+def color_wheel() -> np.ndarray:
+    """The 55×3 Middlebury colour wheel, float in [0, 255]."""
+    segments = [(15, (255, 0, 0), (255, 255, 0)), (6, (255, 255, 0), (0, 255, 0)),
+                (4, (0, 255, 0), (0, 255, 255)), (11, (0, 255, 255), (0, 0, 255)),
+                (13, (0, 0, 255), (255, 0, 255)), (6, (255, 0, 255), (255, 0, 0))]
+    rows = []
+    for n, start, end in segments:
+        t = np.arange(n, dtype=np.float64)[:, None] / n
+        rows.append(np.asarray(start, np.float64) * (1 - t) + np.asarray(end, np.float64) * t)
+    return np.floor(np.concatenate(rows, 0))
+
+
+def flow_to_color(flow: np.ndarray, max_flow: float | None = None) -> np.ndarray:
+    """``flow (H,W,2)`` or ``(2,H,W)`` pixels → RGB uint8 ``(H,W,3)`` (Middlebury coding: hue is the
+    direction on the 55-colour wheel of :func:`color_wheel`, saturation the magnitude).
+
+    Magnitudes are divided by ``max_flow`` (default: the largest finite magnitude); vectors longer than
+    that are drawn at 75 % brightness; non-finite vectors are black.
+    """
+    f = np.asarray(flow, dtype=np.float64)
+    if f.ndim == 3 and f.shape[0] == 2 and f.shape[-1] != 2:
+        f = f.transpose(1, 2, 0)
+    if f.ndim != 3 or f.shape[-1] != 2:
+        raise ValueError(f"flow_to_color: expected (H,W,2) or (2,H,W), got {np.shape(flow)}")
+    u, v = f[..., 0], f[..., 1]
+    bad = ~(np.isfinite(u) & np.isfinite(v))
+    u, v = np.where(bad, 0, u), np.where(bad, 0, v)
+    mag = np.hypot(u, v)
+    scale = max_flow if max_flow is not None else (float(mag.max()) if mag.size else 0.0)
+    scale = max(scale, 1e-9)
+    u, v, mag = u / scale, v / scale, mag / scale
+    wheel = color_wheel()
+    n = wheel.shape[0]
+    angle = np.arctan2(-v, -u) / np.pi                 # in (-1, 1]
+    fk = (angle + 1) / 2 * (n - 1)                      # 0 .. n-1
+    k0 = np.floor(fk).astype(int)
+    k1 = (k0 + 1) % n
+    frac = (fk - k0)[..., None]
+    col = ((1 - frac) * wheel[k0] + frac * wheel[k1]) / 255.0
+    inside = (mag <= 1)[..., None]
+    col = np.where(inside, 1 - mag[..., None] * (1 - col), col * 0.75)
+    img = np.floor(255 * col).astype(np.uint8)
+    img[bad] = 0
+    return img

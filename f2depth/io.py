@@ -11,7 +11,10 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import pickle
+import re
 import shutil
+import struct
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
@@ -130,3 +133,31 @@ def torch_save(path: str | os.PathLike, obj: Any) -> None:
 
     with atomic_path(path) as tmp:
         torch.save(obj, tmp)
+
+
+_ANSI = re.compile(r"\x1b\[[0-9;]*m")  # torch colours parts of its load errors
+_UNSUPPORTED = re.compile(r"Unsupported global: GLOBAL (\S+)")
+_UNPICKLER = re.compile(r"WeightsUnpickler error: (.*?) Check the documentation")
+_LOAD_ERRORS = (pickle.UnpicklingError, RuntimeError, EOFError, ValueError, OSError, AttributeError,
+                TypeError, KeyError, IndexError, struct.error)
+
+
+def load_weights(path: str | os.PathLike, kind: str, fix: str) -> Any:
+    """``torch.load(path, weights_only=True)`` on CPU; a file it cannot read raises a ValueError of one line:
+    ``<path>: not <kind>: it holds pickled Python objects (...) ...; <fix>`` or ``<path>: not a readable
+    torch checkpoint (<reason>); <fix>``. torch's advice to retry with ``weights_only=False`` (which would
+    run whatever code the file pickled) is never passed on."""
+    import torch
+
+    try:
+        return torch.load(path, map_location="cpu", weights_only=True)
+    except _LOAD_ERRORS as exc:
+        text = " ".join(_ANSI.sub("", str(exc)).split())
+        found = _UNSUPPORTED.search(text)
+        if found:
+            raise ValueError(f"{path}: not {kind}: it holds pickled Python objects ({found.group(1)}), "
+                             f"which a weights_only load refuses and f2depth never unpickles; {fix}") from exc
+        reason = _UNPICKLER.search(text)
+        first = (f"WeightsUnpickler: {reason.group(1)}" if reason
+                 else text[:200] if text and "weights_only" not in text else type(exc).__name__)
+        raise ValueError(f"{path}: not a readable torch checkpoint ({first}); {fix}") from exc

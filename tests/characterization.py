@@ -387,6 +387,7 @@ def _finetune_config(loss: str):
 
 def metrics() -> Values:
     """Per-image metrics, median scaling, clipping, aggregation, flip post-processing, EPE."""
+    from f2depth.colour import flow_to_color
     from f2depth.eval.metrics import (
         aggregate,
         clip_depth,
@@ -403,7 +404,6 @@ def metrics() -> Values:
     from f2depth.flow.evaluation import (
         EPEAccumulator,
         epe_stats,
-        flow_to_color,
         gradient_energy,
         low_texture_mask,
     )
@@ -519,9 +519,10 @@ def depth_train_step() -> Values:
     from f2depth.depth import DepthModel, DepthModelConfig
     from f2depth.flow import PWCLite
     from f2depth.losses import LossWeights
+    from f2depth.superpixels import scaled_min_area
     from f2depth.train.data import DataConfig, TupleDataset
     from f2depth.train.schedule import LRSchedule
-    from f2depth.train.step import StepConfig, scaled_min_area, train_step
+    from f2depth.train.step import StepConfig, train_step
     from f2depth.train.teacher import FlowTeacher
 
     out: Values = {}

@@ -7,13 +7,10 @@ import torch
 
 from f2depth.flow.augment import (
     AugmentConfig,
-    adjust,
     augment_batch,
     color_jitter,
     hflip_flow,
     hflip_keypoints,
-    hsv_to_rgb,
-    rgb_to_hsv,
 )
 from f2depth.flow.patch_loss import FinetuneLossConfig, finetune_loss, pad_keypoints
 from f2depth.flow.warp import warp
@@ -21,19 +18,6 @@ from f2depth.flow.warp import warp
 
 def rand_img(b=2, h=12, w=16, seed=0):
     return torch.rand(b, 3, h, w, generator=torch.Generator().manual_seed(seed))
-
-
-def test_hsv_round_trip_and_hue_rotation():
-    img = rand_img()
-    assert torch.allclose(hsv_to_rgb(rgb_to_hsv(img)), img, atol=1e-5)
-    red = torch.zeros(3, 2, 2)
-    red[0] = 1
-    green = adjust(red, "hue", 1 / 3)
-    assert torch.allclose(green[1], torch.ones(2, 2), atol=1e-5) and green[0].abs().max() < 1e-5
-    assert torch.allclose(adjust(img, "hue", 0.0), img, atol=1e-5)
-    grey = adjust(img, "saturation", 0.0)
-    assert torch.allclose(grey[:, 0], grey[:, 1]) and torch.allclose(grey[:, 1], grey[:, 2])
-    assert torch.allclose(adjust(img, "brightness", 0.5), img * 0.5)
 
 
 def test_jitter_shares_parameters_between_frames_and_is_seeded():

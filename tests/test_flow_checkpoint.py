@@ -71,7 +71,7 @@ def test_lists_missing_unexpected_and_misshaped_keys(tmp_path, ref_sd):
 def test_not_a_checkpoint_file(tmp_path, content):
     path = tmp_path / "junk.pth.tar"
     path.write_bytes(content)
-    with pytest.raises(CheckpointError, match=r"junk\.pth\.tar: not a PyTorch checkpoint"):
+    with pytest.raises(CheckpointError, match=r"junk\.pth\.tar: not a readable torch checkpoint"):
         load_flow_model(path)
 
 

@@ -6,12 +6,11 @@ import numpy as np
 import pytest
 import torch
 
+from f2depth.colour import color_wheel, flow_to_color
 from f2depth.flow.evaluation import (
     COSINE_MIN_FLOW,
     EPEAccumulator,
-    color_wheel,
     epe_stats,
-    flow_to_color,
     gradient_energy,
     low_texture_mask,
 )

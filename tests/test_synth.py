@@ -16,6 +16,7 @@ import pytest
 import scipy.io
 
 from f2depth.camera import NYU_RGB_DIST, NYU_RGB_K
+from f2depth.data.sintel import read_flo
 from f2depth.params import ParamsError
 from f2depth.synth import OutputPaths, SynthConfig, generate, jobs, plan, writers
 from f2depth.synth.camera_path import PathStyle, handheld_path, rotation
@@ -25,7 +26,7 @@ from f2depth.synth.matfiles import read_cellstr
 from f2depth.synth.render import render
 from f2depth.synth.scene import Box, Light, Material, bake
 from f2depth.synth.sensor import expose
-from f2depth.synth.writers import DEPTH_STEP, FLOW_STEP, read_flo
+from f2depth.synth.writers import DEPTH_STEP, FLOW_STEP
 
 REPO = Path(__file__).resolve().parents[1]
 

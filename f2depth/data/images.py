@@ -20,6 +20,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import torch
 from PIL import Image
 
 from f2depth.data.errors import DataError
@@ -252,3 +253,8 @@ def resize_rgb(rgb: np.ndarray, hw: tuple[int, int], interpolation: str = "area"
     if interpolation == "area":
         return cv2.resize(np.ascontiguousarray(rgb), (w, h), interpolation=cv2.INTER_AREA)
     raise ValueError(f"interpolation must be one of {INTERPOLATIONS}, got {interpolation!r}")
+
+
+def to_tensor(rgb: np.ndarray) -> torch.Tensor:
+    """RGB uint8 ``(H,W,3)`` → float32 ``(3,H,W)`` in [0, 1]."""
+    return torch.from_numpy(np.ascontiguousarray(rgb)).permute(2, 0, 1).float().div_(255.0)

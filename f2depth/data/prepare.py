@@ -40,11 +40,10 @@ from f2depth.data.errors import DataError
 from f2depth.data.images import INTERPOLATIONS, resize_rgb, write_rgb
 from f2depth.data.nyu_labeled import scenes_of_test_images
 from f2depth.data.nyu_raw import RawFrame, list_frames, list_scenes, read_frame
+from f2depth.superpixels import MIN_AREA, scaled_min_area
 from f2depth.io import atomic_dir, imwrite, save_npz, write_json, write_text
 
 #: Superpixels larger than this many pixels take part in P²Net's planar loss (at 288×384).
-LARGE_SUPERPIXEL_PX = 1000
-P2NET_HW = (288, 384)
 _ROOM_SUFFIX = re.compile(r"(_\d+)[a-z]$")
 
 
@@ -139,7 +138,7 @@ def superpixels(rgb: np.ndarray, params: SuperpixelParams) -> np.ndarray:
     return labels.astype(np.uint16)
 
 
-def superpixel_stats(labels: np.ndarray, min_area: int = LARGE_SUPERPIXEL_PX) -> tuple[int, float]:
+def superpixel_stats(labels: np.ndarray, min_area: float = MIN_AREA) -> tuple[int, float]:
     """(number of superpixels, share of pixels in superpixels larger than ``min_area`` px)."""
     counts = np.bincount(labels.ravel().astype(np.int64))
     counts = counts[counts > 0]
@@ -241,11 +240,6 @@ def _init_worker() -> None:
     cv2.setNumThreads(1)
 
 
-def scaled_large_px(hw: tuple[int, int]) -> float:
-    """P²Net's 1000 px threshold scaled by area from 288×384 to ``hw`` (111 px at 96×128)."""
-    return LARGE_SUPERPIXEL_PX * hw[0] * hw[1] / (P2NET_HW[0] * P2NET_HW[1])
-
-
 def _run_job(job: _Job) -> tuple[str, int, float, float] | None:
     t, cfg, out = job.task, job.config, job.out
     img = prepare_image(read_frame(t.raw.path), cfg.crop, cfg.hw, cfg.interpolation)
@@ -259,7 +253,7 @@ def _run_job(job: _Job) -> tuple[str, int, float, float] | None:
     labels = superpixels(img, cfg.superpixels)
     imwrite(out / segments_rel(t.frame_id), labels)
     n, share = superpixel_stats(labels)
-    _, share_scaled = superpixel_stats(labels, scaled_large_px(cfg.hw))
+    _, share_scaled = superpixel_stats(labels, scaled_min_area(*cfg.hw))
     return t.frame_id, n, share, share_scaled
 
 
@@ -374,7 +368,7 @@ def prepare(
         "superpixels_per_target": float(mean[0]),
         "superpixel_share_over_1000px": float(mean[1]),
         "superpixel_share_over_scaled_px": float(mean[2]),
-        "superpixel_scaled_px": round(scaled_large_px(config.hw), 1),
+        "superpixel_scaled_px": round(scaled_min_area(*config.hw), 1),
         "height": config.height,
         "width": config.width,
         "seconds": round(time.perf_counter() - start, 2),

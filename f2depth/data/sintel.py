@@ -23,7 +23,7 @@ import numpy as np
 import torch
 
 from f2depth.data.errors import DataError
-from f2depth.data.images import read_bytes, read_image
+from f2depth.data.images import read_bytes, read_image, to_tensor
 
 FLO_MAGIC = 202021.25
 PASSES = ("clean", "final")
@@ -160,11 +160,11 @@ def load_pair(pair: SintelPair) -> dict[str, np.ndarray | None]:
     return {"image1": im1, "image2": im2, "flow": flow, "occluded": occ}
 
 
-def to_tensor(rgb: np.ndarray, size: tuple[int, int] | None = None) -> torch.Tensor:
+def resized_tensor(rgb: np.ndarray, size: tuple[int, int] | None = None) -> torch.Tensor:
     """RGB uint8 ``(H,W,3)`` → float ``(3,h,w)`` in [0,1], area-resized to ``size = (h, w)`` if given."""
     if size is not None and tuple(rgb.shape[:2]) != tuple(size):
         rgb = cv2.resize(rgb, (size[1], size[0]), interpolation=cv2.INTER_AREA)
-    return torch.from_numpy(np.ascontiguousarray(rgb)).permute(2, 0, 1).float().div_(255.0)
+    return to_tensor(rgb)
 
 
 class SintelPairs(torch.utils.data.Dataset):
@@ -188,7 +188,7 @@ class SintelPairs(torch.utils.data.Dataset):
         pair = self.pairs[index]
         im1 = read_image(pair.image1)
         im2 = read_image(pair.image2, im1.shape[:2])
-        a, b = to_tensor(im1, self.size), to_tensor(im2, self.size)
+        a, b = resized_tensor(im1, self.size), resized_tensor(im2, self.size)
         if self.augment:
             if torch.rand(()) < 0.5:
                 a, b = a.flip(-1), b.flip(-1)

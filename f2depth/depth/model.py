@@ -20,9 +20,6 @@ from __future__ import annotations
 
 import dataclasses
 import os
-import pickle
-import re
-import struct
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -36,13 +33,10 @@ from f2depth.depth.encoder import ResnetEncoder
 from f2depth.depth.pose import PoseDecoder
 from f2depth.depth.resnet import BLOCKS, load_imagenet_resnet
 from f2depth.geometry import invert_pose, pose_from_params
-from f2depth.io import torch_save
+from f2depth.io import load_weights, torch_save
 
 CHECKPOINT_FORMAT = "f2depth.depth"
 CHECKPOINT_VERSION = 1
-_ANSI = re.compile(r"\x1b\[[0-9;]*m")  # torch colours parts of its load errors
-_UNSUPPORTED = re.compile(r"Unsupported global: GLOBAL (\S+)")
-_UNPICKLER = re.compile(r"WeightsUnpickler error: (.*?) Check the documentation")
 
 
 @dataclass(frozen=True)
@@ -194,24 +188,6 @@ def save_checkpoint(
     torch_save(path, ckpt)
 
 
-def _load_error(path: Path, exc: BaseException) -> str:
-    """One line for a ``torch.load`` failure. torch's advice to retry with ``weights_only=False`` (which
-    would run whatever code the file pickled) is never passed on: such a file is not an f2depth
-    checkpoint."""
-    text = " ".join(_ANSI.sub("", str(exc)).split())
-    found = _UNSUPPORTED.search(text)
-    if found:
-        return (f"{path}: not an f2depth checkpoint: it holds pickled Python objects ({found.group(1)}), "
-                "which a weights_only load refuses and f2depth never unpickles; give a model written by "
-                "f2depth (models/depth_<variant>/model.pt)")
-    reason = _UNPICKLER.search(text)
-    if reason:
-        first = f"WeightsUnpickler: {reason.group(1)}"
-    else:
-        first = text[:200] if text and "weights_only" not in text else type(exc).__name__
-    return f"{path}: not a readable torch checkpoint ({first})"
-
-
 def read_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
     """Load and validate a depth checkpoint dict (format, version, keys); tensors on CPU. Every problem is
     a ValueError whose one line starts with the path (FileNotFoundError when it does not exist)."""
@@ -222,10 +198,8 @@ def read_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
         raise ValueError(f"{path}: is a directory, not a depth checkpoint; {hint}")
     if not path.is_file():
         raise FileNotFoundError(f"{path}: depth checkpoint not found; run `dvc repro train_depth` first")
-    try:
-        ckpt = torch.load(path, map_location="cpu", weights_only=True)
-    except (RuntimeError, OSError, ValueError, EOFError, struct.error, pickle.UnpicklingError) as exc:
-        raise ValueError(_load_error(path, exc)) from exc
+    ckpt = load_weights(path, "an f2depth checkpoint",
+                        "give a model written by f2depth (models/depth_<variant>/model.pt)")
     if not isinstance(ckpt, dict):
         raise ValueError(f"{path}: expected a checkpoint dict, got {type(ckpt).__name__}")
     fmt = ckpt.get("format")

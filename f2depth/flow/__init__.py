@@ -1,7 +1,8 @@
 """Optical flow: the flow-network interface and its registry, ARFlow's PWC-Lite, its cost volume, census,
-warp, unsupervised loss, AR transforms, checkpoints and evaluation (ARFlow, Liu et al., CVPR 2020; its
+warp, unsupervised loss, checkpoints and evaluation (ARFlow, Liu et al., CVPR 2020; its
 code github.com/lliuz/ARFlow)."""
 
+from f2depth.colour import flow_to_color
 from f2depth.flow.census import census_distance
 from f2depth.flow.checkpoint import (
     NETWORKS,
@@ -12,7 +13,7 @@ from f2depth.flow.checkpoint import (
     save_flow_model,
 )
 from f2depth.flow.correlation import correlation, correlation_reference
-from f2depth.flow.evaluation import EPEAccumulator, epe_stats, flow_to_color, low_texture_mask
+from f2depth.flow.evaluation import EPEAccumulator, epe_stats, low_texture_mask
 from f2depth.flow.loss import SINTEL_FT, SINTEL_RAW, FlowLossConfig, flow_loss, non_occluded_masks
 from f2depth.flow.network import FlowNetwork
 from f2depth.flow.pwclite import PWCLite

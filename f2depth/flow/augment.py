@@ -8,9 +8,7 @@ As in P²Net, the jittered images are only the *network input*; the loss compare
 flow ``f`` gives the flow ``(−u, v)`` mirrored (:func:`hflip_flow`); frames are never swapped, so the
 flow stays target → source. All randomness comes from the ``torch.Generator`` passed in.
 
-The jitter operations follow torchvision's ``ColorJitter`` definitions (written here, torchvision is not a
-dependency): brightness ``x·f``; contrast ``f·x + (1−f)·mean(grey(x))``; saturation ``f·x + (1−f)·grey(x)``;
-hue: rotate the HSV hue by ``f`` turns; results clipped to [0, 1].
+The jitter operations are ``f2depth.colour.adjust`` with MATLAB's grey weights (``GREY_MATLAB``).
 """
 
 from __future__ import annotations
@@ -19,7 +17,7 @@ from dataclasses import dataclass
 
 import torch
 
-from f2depth.flow.census import GREY_WEIGHTS
+from f2depth.colour import GREY_MATLAB, adjust
 
 
 @dataclass(frozen=True)
@@ -30,58 +28,6 @@ class AugmentConfig:
     saturation: tuple[float, float] = (0.8, 1.2)
     hue: tuple[float, float] = (-0.1, 0.1)
     flip_p: float = 0.5
-
-
-def grey(img: torch.Tensor) -> torch.Tensor:
-    """``(...,3,H,W)`` RGB in [0,1] → ``(...,1,H,W)`` luma (ITU-R 601, torchvision's weights)."""
-    w = img.new_tensor(GREY_WEIGHTS).view(3, 1, 1)
-    return (img * w).sum(-3, keepdim=True)
-
-
-def rgb_to_hsv(img: torch.Tensor) -> torch.Tensor:
-    """``(...,3,H,W)`` RGB in [0,1] → HSV, every channel in [0,1] (hue in turns)."""
-    r, g, b = img.unbind(-3)
-    maxc, _ = img.max(-3)
-    minc, _ = img.min(-3)
-    delta = maxc - minc
-    s = torch.where(maxc > 0, delta / maxc.clamp_min(1e-12), torch.zeros_like(maxc))
-    safe = delta.clamp_min(1e-12)
-    h = torch.where(maxc == r, ((g - b) / safe) % 6,
-                    torch.where(maxc == g, (b - r) / safe + 2, (r - g) / safe + 4))
-    h = torch.where(delta > 0, h / 6.0, torch.zeros_like(h)) % 1.0
-    return torch.stack([h, s, maxc], -3)
-
-
-def hsv_to_rgb(img: torch.Tensor) -> torch.Tensor:
-    """Inverse of :func:`rgb_to_hsv`."""
-    h, s, v = img.unbind(-3)
-    h6 = (h % 1.0) * 6.0
-    i = torch.floor(h6)
-    f = h6 - i
-    i = i.to(torch.int64) % 6
-    p, q, t = v * (1 - s), v * (1 - s * f), v * (1 - s * (1 - f))
-    table = [(v, t, p), (q, v, p), (p, v, t), (p, q, v), (t, p, v), (v, p, q)]
-    out = torch.zeros_like(img)
-    for k, (rr, gg, bb) in enumerate(table):
-        sel = (i == k).unsqueeze(-3)
-        out = torch.where(sel, torch.stack([rr, gg, bb], -3), out)
-    return out
-
-
-def adjust(img: torch.Tensor, op: str, factor: float) -> torch.Tensor:
-    """One jitter operation on ``(...,3,H,W)`` in [0,1] (see the module docstring)."""
-    if op == "brightness":
-        out = img * factor
-    elif op == "contrast":
-        out = factor * img + (1 - factor) * grey(img).mean((-1, -2, -3), keepdim=True)
-    elif op == "saturation":
-        out = factor * img + (1 - factor) * grey(img)
-    elif op == "hue":
-        hsv = rgb_to_hsv(img.clamp(0, 1))
-        out = hsv_to_rgb(torch.cat([(hsv[..., :1, :, :] + factor) % 1.0, hsv[..., 1:, :, :]], -3))
-    else:
-        raise ValueError(f"unknown colour operation {op!r}")
-    return out.clamp(0, 1)
 
 
 def _uniform(lo_hi: tuple[float, float], gen: torch.Generator) -> float:
@@ -103,7 +49,7 @@ def color_jitter(frames: list[torch.Tensor], gen: torch.Generator, cfg: AugmentC
         for frame in out:
             x = frame[i]
             for k in order:
-                x = adjust(x, *ops[k])
+                x = adjust(x, *ops[k], GREY_MATLAB)
             frame[i] = x
     return out
 

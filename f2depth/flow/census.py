@@ -15,13 +15,12 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
-GREY_WEIGHTS = (0.2989, 0.5870, 0.1140)
+from f2depth.colour import GREY_MATLAB, grey
 
 
 def grey255(img: torch.Tensor) -> torch.Tensor:
     """``img (B,3,H,W)`` RGB in [0,1] → ``(B,1,H,W)`` grey in [0,255] (ARFlow's weights)."""
-    r, g, b = img[:, 0:1], img[:, 1:2], img[:, 2:3]
-    return (GREY_WEIGHTS[0] * r + GREY_WEIGHTS[1] * g + GREY_WEIGHTS[2] * b) * 255.0
+    return grey(img, GREY_MATLAB) * 255.0
 
 
 def ternary_transform(img: torch.Tensor) -> torch.Tensor:

@@ -19,8 +19,6 @@ Loading is strict: missing, unexpected and mis-shaped keys are all listed in one
 from __future__ import annotations
 
 import os
-import pickle
-import re
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -29,6 +27,7 @@ import torch
 
 from f2depth.flow.network import FlowNetwork
 from f2depth.flow.pwclite import PWCLite
+from f2depth.io import load_weights
 
 #: Every flow network by the name that params.yaml (``flow_pretrain.network``) and checkpoints use.
 NETWORKS: dict[str, type[FlowNetwork]] = {"pwclite": PWCLite}
@@ -70,20 +69,9 @@ def _torch_load(path: str | os.PathLike) -> Any:
                               "(flow_pretrain.checkpoint, flow_finetune.pretrained or "
                               "variants.<name>.flow_model)")
     try:
-        return torch.load(p, map_location="cpu", weights_only=True)
-    except (pickle.UnpicklingError, RuntimeError, EOFError, ValueError, OSError, AttributeError,
-            TypeError, KeyError, IndexError) as exc:
-        text = " ".join(re.sub(r"\x1b\[[0-9;]*m", "", str(exc)).split())
-        # torch's advice to load with weights_only=False (running pickled code) is never passed on
-        found = re.search(r"Unsupported global: GLOBAL (\S+)", text)
-        if found:
-            raise CheckpointError(f"{p}: not an f2depth or ARFlow checkpoint: it holds pickled Python "
-                                  f"objects ({found.group(1)}), which a weights_only load refuses and "
-                                  f"f2depth never unpickles; {_FIX_ARFLOW}") from exc
-        reason = re.search(r"WeightsUnpickler error: (.*?) Check the documentation", text)
-        first = (f"WeightsUnpickler: {reason.group(1)}" if reason
-                 else text[:200] if text and "weights_only" not in text else type(exc).__name__)
-        raise CheckpointError(f"{p}: not a PyTorch checkpoint ({first}); {_FIX_ARFLOW}") from exc
+        return load_weights(p, "an f2depth or ARFlow checkpoint", _FIX_ARFLOW)
+    except ValueError as exc:
+        raise CheckpointError(str(exc)) from exc
 
 
 def _is_state_dict(obj: Any) -> bool:

@@ -20,18 +20,15 @@ central-difference gradients ``(I(x+1) − I(x−1))/2``. Uniform walls, ceiling
 in it; edges, text and texture do not. This is where photometric losses carry no signal, which is what
 the patch-based fine-tuning targets.
 
-:func:`flow_to_color` is the Middlebury colour coding (Baker et al., IJCV 2011): hue is the direction
-on a 55-colour wheel (red → yellow → green → cyan → blue → magenta, 15/6/4/11/13/6 steps), saturation
-the magnitude relative to the largest one shown.
+Flow pictures use :func:`f2depth.colour.flow_to_color` (the Middlebury colour coding).
 """
 
 from __future__ import annotations
 
-import numpy as np
 import torch
 import torch.nn.functional as F
 
-from f2depth.flow.census import GREY_WEIGHTS
+from f2depth.colour import GREY_MATLAB, grey
 
 LOW_TEXTURE_THRESHOLD = 0.01
 LOW_TEXTURE_WINDOW = 7
@@ -40,8 +37,7 @@ COSINE_MIN_FLOW = 0.1
 
 def gradient_energy(img: torch.Tensor, window: int = LOW_TEXTURE_WINDOW) -> torch.Tensor:
     """Local RMS gradient of the grey image: ``img (B,3,H,W)`` in [0,1] → ``(B,1,H,W)`` per pixel."""
-    grey = (img * img.new_tensor(GREY_WEIGHTS).view(1, 3, 1, 1)).sum(1, keepdim=True)
-    p = F.pad(grey, (1, 1, 1, 1), mode="replicate")
+    p = F.pad(grey(img, GREY_MATLAB), (1, 1, 1, 1), mode="replicate")
     gx = (p[:, :, 1:-1, 2:] - p[:, :, 1:-1, :-2]) / 2
     gy = (p[:, :, 2:, 1:-1] - p[:, :, :-2, 1:-1]) / 2
     energy = F.avg_pool2d(F.pad(gx * gx + gy * gy, (window // 2,) * 4, mode="replicate"), window, 1)
@@ -128,48 +124,3 @@ def epe_stats(flow: torch.Tensor, gt: torch.Tensor, occluded: torch.Tensor | Non
     acc = EPEAccumulator()
     acc.add(flow, gt, occluded, low_texture, valid)
     return acc.result()
-
-
-def color_wheel() -> np.ndarray:
-    """The 55×3 Middlebury colour wheel, float in [0, 255]."""
-    segments = [(15, (255, 0, 0), (255, 255, 0)), (6, (255, 255, 0), (0, 255, 0)),
-                (4, (0, 255, 0), (0, 255, 255)), (11, (0, 255, 255), (0, 0, 255)),
-                (13, (0, 0, 255), (255, 0, 255)), (6, (255, 0, 255), (255, 0, 0))]
-    rows = []
-    for n, start, end in segments:
-        t = np.arange(n, dtype=np.float64)[:, None] / n
-        rows.append(np.asarray(start, np.float64) * (1 - t) + np.asarray(end, np.float64) * t)
-    return np.floor(np.concatenate(rows, 0))
-
-
-def flow_to_color(flow: np.ndarray, max_flow: float | None = None) -> np.ndarray:
-    """``flow (H,W,2)`` or ``(2,H,W)`` pixels → RGB uint8 ``(H,W,3)`` (Middlebury coding).
-
-    Magnitudes are divided by ``max_flow`` (default: the largest finite magnitude); vectors longer than
-    that are drawn at 75 % brightness; non-finite vectors are black.
-    """
-    f = np.asarray(flow, dtype=np.float64)
-    if f.ndim == 3 and f.shape[0] == 2 and f.shape[-1] != 2:
-        f = f.transpose(1, 2, 0)
-    if f.ndim != 3 or f.shape[-1] != 2:
-        raise ValueError(f"flow_to_color: expected (H,W,2) or (2,H,W), got {np.shape(flow)}")
-    u, v = f[..., 0], f[..., 1]
-    bad = ~(np.isfinite(u) & np.isfinite(v))
-    u, v = np.where(bad, 0, u), np.where(bad, 0, v)
-    mag = np.hypot(u, v)
-    scale = max_flow if max_flow is not None else (float(mag.max()) if mag.size else 0.0)
-    scale = max(scale, 1e-9)
-    u, v, mag = u / scale, v / scale, mag / scale
-    wheel = color_wheel()
-    n = wheel.shape[0]
-    angle = np.arctan2(-v, -u) / np.pi                 # in (-1, 1]
-    fk = (angle + 1) / 2 * (n - 1)                      # 0 .. n-1
-    k0 = np.floor(fk).astype(int)
-    k1 = (k0 + 1) % n
-    frac = (fk - k0)[..., None]
-    col = ((1 - frac) * wheel[k0] + frac * wheel[k1]) / 255.0
-    inside = (mag <= 1)[..., None]
-    col = np.where(inside, 1 - mag[..., None] * (1 - col), col * 0.75)
-    img = np.floor(255 * col).astype(np.uint8)
-    img[bad] = 0
-    return img

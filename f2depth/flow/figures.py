@@ -1,5 +1,5 @@
 """Figure 8 of the paper for our models: per pair one row RGB | flow of each model | ground truth, flows
-in the Middlebury colour coding (:func:`f2depth.flow.evaluation.flow_to_color`) with one magnitude scale
+in the Middlebury colour coding (:func:`f2depth.colour.flow_to_color`) with one magnitude scale
 per row (the largest ground-truth magnitude, or the largest predicted one without ground truth). Under
 each predicted flow: its EPE on all / low-texture pixels of that pair.
 """
@@ -13,7 +13,8 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from f2depth.flow.evaluation import epe_stats, flow_to_color
+from f2depth.colour import flow_to_color
+from f2depth.flow.evaluation import epe_stats
 from f2depth.flow.finetune_data import GTPair
 from f2depth.flow.network import FlowNetwork
 from f2depth.io import atomic_path

@@ -24,16 +24,12 @@ import numpy as np
 import torch
 
 from f2depth.camera import crop_resize_intrinsics
+from f2depth.data.images import to_tensor
 from f2depth.data.prepared import PairRecord, PreparedSet
 from f2depth.flow.evaluation import low_texture_mask
 from f2depth.flow.patch_loss import pad_keypoints
 from f2depth.geometry import in_view_mask, occlusion_by_depth, relative_pose, rigid_flow
 from f2depth.keypoints.store import KeypointFile
-
-
-def to_tensor(rgb: np.ndarray) -> torch.Tensor:
-    """RGB uint8 ``(H,W,3)`` → float ``(3,H,W)`` in [0,1]."""
-    return torch.from_numpy(np.ascontiguousarray(rgb)).permute(2, 0, 1).float() / 255.0
 
 
 @dataclass(frozen=True)

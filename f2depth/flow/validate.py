@@ -17,8 +17,10 @@ import cv2
 import numpy as np
 import torch
 
-from f2depth.data.sintel import SintelPair, load_pair, to_tensor
-from f2depth.flow.evaluation import EPEAccumulator, endpoint_error, flow_to_color, low_texture_mask
+from f2depth.colour import flow_to_color
+from f2depth.data.images import to_tensor
+from f2depth.data.sintel import SintelPair, load_pair, resized_tensor
+from f2depth.flow.evaluation import EPEAccumulator, endpoint_error, low_texture_mask
 from f2depth.flow.network import FlowNetwork
 from f2depth.geometry import resize_flow
 
@@ -28,8 +30,8 @@ def predict(model: FlowNetwork, image1: np.ndarray, image2: np.ndarray, size: tu
             device: str = "cpu") -> torch.Tensor:
     """RGB uint8 frames (H,W,3) → forward flow ``(1,2,H,W)`` in the frames' pixels (computed at ``size``)."""
     h, w = image1.shape[:2]
-    a = to_tensor(image1, size).unsqueeze(0).to(device)
-    b = to_tensor(image2, size).unsqueeze(0).to(device)
+    a = resized_tensor(image1, size).unsqueeze(0).to(device)
+    b = resized_tensor(image2, size).unsqueeze(0).to(device)
     flow = model(a, b, with_backward=False)[0][0]
     return resize_flow(flow, (h, w)).cpu()
 
@@ -73,11 +75,11 @@ def evaluate_prepared(model: FlowNetwork, prepared_root: str | os.PathLike, max_
                       device: str = "cpu", figure_dir: str | os.PathLike | None = None, figures: int = 0
                       ) -> dict | None:
     """EPE on the prepared set's consecutive pairs (``pairs.csv``) that have ground truth; None when the
-    set has no ground truth. Flow = rigid flow of frame 1's depth under the relative pose; occluded =
-    hidden in frame 2 by depth test or leaving the image; pixels without depth are not scored. The
-    network runs at the prepared size."""
+    set has no ground truth. Ground truth as the fine-tuning scores it (``finetune_data.gt_pair``: rigid
+    flow of frame 1's depth under the relative pose with the geometric K; occluded = hidden in frame 2 or
+    leaving the image; pixels without depth are not scored). The network runs at the prepared size."""
     from f2depth.data.prepared import PreparedSet
-    from f2depth.geometry import in_view_mask, occlusion_by_depth, relative_pose, rigid_flow
+    from f2depth.flow.finetune_data import gt_pair, true_intrinsics
 
     ds = PreparedSet(prepared_root)
     pairs = [p for p in ds.pairs if ds.has_gt(p.frame1) and ds.has_gt(p.frame2)]
@@ -86,21 +88,14 @@ def evaluate_prepared(model: FlowNetwork, prepared_root: str | os.PathLike, max_
     if max_pairs is not None and len(pairs) > max_pairs:
         pairs = [pairs[int(i)] for i in np.linspace(0, len(pairs) - 1, max_pairs).round()]
     chosen = set(np.linspace(0, len(pairs) - 1, figures).round().astype(int).tolist()) if figures else set()
-    K = torch.from_numpy(ds.K)[None]
+    K = true_intrinsics(ds)
     acc, zero = EPEAccumulator(), EPEAccumulator()
     for i, p in enumerate(pairs):
-        (d1, pose1), (d2, pose2) = ds.gt(p.frame1), ds.gt(p.frame2)
-        depth1 = torch.from_numpy(d1).double()[None, None]
-        depth2 = torch.from_numpy(d2).double()[None, None]
-        T = relative_pose(torch.from_numpy(pose1)[None], torch.from_numpy(pose2)[None])  # cam2_T_cam1
-        gt = rigid_flow(depth1, K, T)
-        occluded = occlusion_by_depth(depth1, depth2, K, T) | (in_view_mask(gt) == 0)
-        valid = depth1 > 0
+        g = gt_pair(ds, p, K)
         image1, image2 = ds.image(p.frame1), ds.image(p.frame2)
-        gt32 = gt.float()
-        pred = _score(model, acc, zero, image1, image2, gt32, occluded, valid, None, device)
+        pred = _score(model, acc, zero, image1, image2, g.flow, g.occluded, g.valid, None, device)
         if figure_dir is not None and i in chosen:
-            save_figure(Path(figure_dir) / f"prepared_{p.pair_id}.png", image1, gt32 * valid, pred)
+            save_figure(Path(figure_dir) / f"prepared_{p.pair_id}.png", image1, g.flow * g.valid, pred)
     return _result(acc, zero, len(pairs))
 
 

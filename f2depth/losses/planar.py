@@ -14,9 +14,9 @@ from __future__ import annotations
 import torch
 
 from f2depth.geometry import backproject
+from f2depth.superpixels import MIN_AREA
 
 RIDGE = 0.01
-MIN_AREA = 1000
 PLANE_EPS = 1e-6
 
 

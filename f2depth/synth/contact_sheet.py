@@ -19,24 +19,11 @@ import h5py
 import numpy as np
 
 from f2depth import params as P
+from f2depth.colour import flow_to_color
 from f2depth.io import imwrite
 from f2depth.synth.config import OutputPaths
 
 TILE = (320, 240)  # w, h
-
-
-def flow_to_color(flow: np.ndarray, max_mag: float | None = None) -> np.ndarray:
-    """Flow (H, W, 2) → RGB uint8 on the usual colour wheel: hue = direction, saturation = magnitude
-    relative to ``max_mag`` (default: the 99th percentile)."""
-    mag = np.linalg.norm(flow, axis=2)
-    if max_mag is None:
-        max_mag = float(np.percentile(mag, 99)) + 1e-6
-    ang = (np.degrees(np.arctan2(-flow[..., 1], -flow[..., 0])) + 180.0) / 2.0  # OpenCV hue is 0..180
-    hsv = np.zeros((*flow.shape[:2], 3), np.uint8)
-    hsv[..., 0] = np.clip(ang, 0, 179).astype(np.uint8)
-    hsv[..., 1] = np.clip(mag / max_mag * 255.0, 0, 255).astype(np.uint8)
-    hsv[..., 2] = 255
-    return cv2.cvtColor(hsv, cv2.COLOR_HSV2RGB)
 
 
 def depth_to_color(depth: np.ndarray, d_max: float | None = None) -> np.ndarray:
@@ -86,7 +73,8 @@ def _sequence_row(name: str, frames: list[Path], gt_dir: Path) -> list[np.ndarra
     return [
         _tile(_rgb(frame), f"{name}: {frame.parent.name}"),
         _tile(depth_to_color(gt["depth"]), f"depth {gt['depth'].min():.1f}-{gt['depth'].max():.1f} m"),
-        _tile(flow_to_color(flow), f"flow to next, max {mag.max():.1f} px"),
+        _tile(flow_to_color(flow, float(np.percentile(mag, 99)) + 1e-6),  # saturated beyond the 99th pct
+              f"flow to next, max {mag.max():.1f} px"),
     ]
 
 

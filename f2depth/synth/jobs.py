@@ -11,6 +11,7 @@ import cv2
 import numpy as np
 
 from f2depth.camera import NYU_RGB_DIST, NYU_RGB_K, distortion_maps
+from f2depth.data.sintel import write_flo
 from f2depth.synth import writers
 from f2depth.synth.camera_path import PathStyle, handheld_path
 from f2depth.synth.config import OutputPaths, SynthConfig
@@ -177,7 +178,7 @@ def _write_pair(job, cfg, paths, gt_dir, stem, depth, depth_next, poses, K, stat
     writers.write_gt(gt_dir / f"{stem}.npz", depth, poses[0], K, flow if stored else None,
                      occ if stored else None, cfg.compress_gt)
     if job.dataset == "animated":
-        writers.write_flo(paths.animated / "training" / "flow" / job.room / f"{stem}.flo", flow)
+        write_flo(paths.animated / "training" / "flow" / job.room / f"{stem}.flo", flow)
         writers.write_mask(paths.animated / "training" / "occlusions" / job.room / f"{stem}.png", occ)
     stats["flow_abs_sum"] += float(np.linalg.norm(flow, axis=2).sum(dtype=np.float64))
     stats["flow_count"] += flow.shape[0] * flow.shape[1]

@@ -8,9 +8,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from f2depth.io import atomic_path, imwrite, write_bytes, write_text
-
-FLO_MAGIC = 202021.25
+from f2depth.io import atomic_path, imwrite, write_text
 
 
 def write_rgb(path: str | Path, rgb: np.ndarray, jpeg_quality: int = 95) -> None:
@@ -32,30 +30,6 @@ def write_pose_txt(path: str | Path, world_T_cam: np.ndarray) -> None:
     """4×4 camera-to-world matrix as text, 7-Scenes style (tab separated, %.7e)."""
     lines = ["\t".join(f"{v:.7e}" for v in row) for row in np.asarray(world_T_cam, np.float64)]
     write_text(path, "\n".join(lines) + "\n")
-
-
-def encode_flo(flow: np.ndarray) -> bytes:
-    """Middlebury .flo bytes: b'PIEH' (float32 202021.25), int32 width, int32 height, (H, W, 2) float32."""
-    h, w = flow.shape[:2]
-    if flow.shape != (h, w, 2):
-        raise ValueError(f"flow must be (H, W, 2), got {flow.shape}")
-    head = np.array([FLO_MAGIC], "<f4").tobytes() + np.array([w, h], "<i4").tobytes()
-    return head + np.ascontiguousarray(flow, "<f4").tobytes()
-
-
-def write_flo(path: str | Path, flow: np.ndarray) -> None:
-    write_bytes(path, encode_flo(flow))
-
-
-def read_flo(path: str | Path) -> np.ndarray:
-    """Read a Middlebury .flo file → (H, W, 2) float32 (for tests and tools)."""
-    data = Path(path).read_bytes()
-    if len(data) < 12 or np.frombuffer(data[:4], "<f4")[0] != np.float32(FLO_MAGIC):
-        raise ValueError(f"{path}: not a Middlebury .flo file (bad magic)")
-    w, h = (int(v) for v in np.frombuffer(data[4:12], "<i4"))
-    if len(data) != 12 + 8 * w * h:
-        raise ValueError(f"{path}: size {len(data)} does not match {w}x{h} flow")
-    return np.frombuffer(data[12:], "<f4").reshape(h, w, 2).copy()
 
 
 def write_mask(path: str | Path, mask: np.ndarray) -> None:

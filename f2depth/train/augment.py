@@ -21,8 +21,7 @@ from dataclasses import dataclass
 
 import torch
 
-LUMA = (0.299, 0.587, 0.114)
-JITTER_OPS = ("brightness", "contrast", "saturation", "hue")
+from f2depth.colour import GREY_PIL, JITTER_OPS, adjust
 
 
 @dataclass(frozen=True)
@@ -97,81 +96,12 @@ def flip_pose(T: torch.Tensor) -> torch.Tensor:
 
 # ---- colour ----------------------------------------------------------------------------------------
 
-def grayscale(img: torch.Tensor) -> torch.Tensor:
-    """RGB (..., 3, H, W) in [0, 1] → luma (..., 1, H, W)."""
-    r, g, b = img.unbind(dim=-3)
-    return (LUMA[0] * r + LUMA[1] * g + LUMA[2] * b).unsqueeze(-3)
-
-
-def _blend(img: torch.Tensor, other: torch.Tensor, factor: float) -> torch.Tensor:
-    return (factor * img + (1.0 - factor) * other).clamp(0.0, 1.0)
-
-
-def adjust_brightness(img: torch.Tensor, factor: float) -> torch.Tensor:
-    return (img * factor).clamp(0.0, 1.0)
-
-
-def adjust_contrast(img: torch.Tensor, factor: float) -> torch.Tensor:
-    mean = grayscale(img).mean(dim=(-3, -2, -1), keepdim=True)
-    return _blend(img, mean, factor)
-
-
-def adjust_saturation(img: torch.Tensor, factor: float) -> torch.Tensor:
-    return _blend(img, grayscale(img), factor)
-
-
-def rgb_to_hsv(img: torch.Tensor) -> torch.Tensor:
-    """(..., 3, H, W) RGB in [0, 1] → HSV with hue in [0, 1) turns, saturation and value in [0, 1]."""
-    r, g, b = img.unbind(dim=-3)
-    value = img.amax(dim=-3)
-    chroma = value - img.amin(dim=-3)
-    grey = chroma == 0
-    safe_c = torch.where(grey, torch.ones_like(chroma), chroma)
-    sat = torch.where(value > 0, chroma / torch.where(value > 0, value, torch.ones_like(value)),
-                      torch.zeros_like(value))
-    # hue sector by which channel is the maximum (red wins ties, then green), in units of 60°
-    h_r = ((g - b) / safe_c) % 6.0
-    h_g = (b - r) / safe_c + 2.0
-    h_b = (r - g) / safe_c + 4.0
-    hue = torch.where(value == r, h_r, torch.where(value == g, h_g, h_b))
-    hue = torch.where(grey, torch.zeros_like(hue), hue) / 6.0
-    return torch.stack((hue % 1.0, sat, value), dim=-3)
-
-
-def hsv_to_rgb(hsv: torch.Tensor) -> torch.Tensor:
-    """Inverse of ``rgb_to_hsv``: (..., 3, H, W) → RGB in [0, 1]."""
-    hue, sat, value = hsv.unbind(dim=-3)
-
-    def channel(n: float) -> torch.Tensor:
-        k = (n + hue * 6.0) % 6.0
-        ramp = torch.clamp(torch.minimum(k, 4.0 - k), 0.0, 1.0)
-        return value - value * sat * ramp
-
-    return torch.stack((channel(5.0), channel(3.0), channel(1.0)), dim=-3).clamp(0.0, 1.0)
-
-
-def adjust_hue(img: torch.Tensor, shift: float) -> torch.Tensor:
-    """Rotate the hue by ``shift`` turns (in [−0.5, 0.5])."""
-    if shift == 0.0:
-        return img
-    hsv = rgb_to_hsv(img)
-    hsv = torch.stack(((hsv[..., 0, :, :] + shift) % 1.0, hsv[..., 1, :, :], hsv[..., 2, :, :]), dim=-3)
-    return hsv_to_rgb(hsv)
-
-
 def color_jitter(img: torch.Tensor, d: AugmentDraw) -> torch.Tensor:
     """Apply the drawn jitter (if ``d.jitter``) to RGB (..., 3, H, W) in [0, 1]; contrast uses each
     image's own mean (leading dimensions are separate images)."""
     if not d.jitter:
         return img
+    factors = {"brightness": d.brightness, "contrast": d.contrast, "saturation": d.saturation, "hue": d.hue}
     for op in d.order:
-        name = JITTER_OPS[op]
-        if name == "brightness":
-            img = adjust_brightness(img, d.brightness)
-        elif name == "contrast":
-            img = adjust_contrast(img, d.contrast)
-        elif name == "saturation":
-            img = adjust_saturation(img, d.saturation)
-        else:
-            img = adjust_hue(img, d.hue)
+        img = adjust(img, JITTER_OPS[op], factors[JITTER_OPS[op]], GREY_PIL)
     return img

@@ -28,6 +28,7 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
+from f2depth.data.images import to_tensor
 from f2depth.data.prepared import PreparedSet
 from f2depth.keypoints import KeypointFile, fill_up
 from f2depth.poses.store import PosePriors
@@ -48,11 +49,6 @@ def sample_seed(seed: int, epoch: int, index: int, stream: int) -> int:
 
 def generator(seed: int, epoch: int, index: int, stream: int) -> torch.Generator:
     return torch.Generator().manual_seed(sample_seed(seed, epoch, index, stream))
-
-
-def to_tensor(rgb: np.ndarray) -> torch.Tensor:
-    """RGB uint8 (H,W,3) → float32 (3,H,W) in [0, 1]."""
-    return torch.from_numpy(np.ascontiguousarray(rgb.transpose(2, 0, 1))).float().div_(255.0)
 
 
 @dataclass(frozen=True)

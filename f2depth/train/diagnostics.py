@@ -27,11 +27,11 @@ import numpy as np
 import torch
 from torch import nn
 
+from f2depth.data.images import to_tensor
 from f2depth.data.prepared import PreparedSet
 from f2depth.eval.metrics import EmptyMaskError, aggregate, image_metrics
 from f2depth.geometry import relative_pose
 from f2depth.poses.store import PosePriors
-from f2depth.train.data import to_tensor
 from f2depth.train.step import pose_priors
 from f2depth.train.validate import evaluating
 

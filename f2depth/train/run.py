@@ -25,6 +25,7 @@ from f2depth.data.prepared import PreparedSet
 from f2depth.depth import DepthModel, DepthModelConfig, save_checkpoint
 from f2depth.io import atomic_dir, write_json
 from f2depth.poses.store import PosePriors
+from f2depth.superpixels import scaled_min_area
 from f2depth.train import checkpoint as ckpt
 from f2depth.train.data import DataConfig, TupleDataset
 from f2depth.train.diagnostics import DIAGNOSTIC_KEYS, TrainTruth, constant_depth_metrics, diagnose
@@ -32,7 +33,7 @@ from f2depth.train.distributed import DistContext, barrier
 from f2depth.train.loop import FitResult, LoopConfig, fit, seed_everything, write_history
 from f2depth.train.schedule import LRSchedule
 from f2depth.train.settings import TrainSettings
-from f2depth.train.step import StepConfig, scaled_min_area
+from f2depth.train.step import StepConfig
 from f2depth.train.teacher import FlowTeacher
 from f2depth.train.validate import make_validator
 

@@ -45,15 +45,6 @@ from f2depth.losses import (
 from f2depth.precision import autocast, full_precision
 from f2depth.train.teacher import FlowTeacher, TeacherOutput
 
-#: P²Net's superpixel size threshold (pixels at 288×384).
-P2NET_MIN_AREA = 1000
-P2NET_HW = (288, 384)
-
-
-def scaled_min_area(height: int, width: int) -> float:
-    """P²Net's 1000 px at 288×384 scaled by image area (111 px at 96×128), as ``prepare`` reports it."""
-    return P2NET_MIN_AREA * height * width / (P2NET_HW[0] * P2NET_HW[1])
-
 
 @dataclass(frozen=True)
 class StepConfig:
