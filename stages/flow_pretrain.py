@@ -96,7 +96,12 @@ def main(argv: list[str]) -> None:
             print(f"flow_pretrain {name} ({res['pairs']} pairs): EPE all {m['epe_all']:.3f} (zero flow "
                   f"{z['epe_all']:.3f}), noc {m['epe_noc']:.3f} ({z['epe_noc']:.3f}), low texture "
                   f"{fmt(m['epe_low_texture'])} ({fmt(z['epe_low_texture'])}), "
-                  f"|f|/|gt| {fmt(m.get('magnitude_ratio'), 2)}, cos {fmt(m.get('cosine'), 2)}")
+                  f"|f|/|gt| {fmt(m.get('magnitude_ratio'), 2)}, cos {fmt(m.get('cosine'), 2)}, "
+                  f"swap cos {fmt(m.get('swap_consistency'), 2)}")
+            if (m.get("swap_consistency") or 0.0) < 0:
+                print(f"flow_pretrain: WARNING {name}: flow(2→1) is not the reverse of flow(1→2) "
+                      f"(swap cos {m['swap_consistency']:.2f}): the network's output does not follow the "
+                      "images; its EPE and cosine there measure a constant field (docs/flow_pretrain.md)")
     print(f"flow_pretrain: {metrics['seconds']} s → {section['model']}")
 
 

@@ -155,3 +155,17 @@ def test_max_flow_saturates_long_vectors():
     img = flow_to_color(flow, max_flow=2.0)
     assert img[0, 0].max() <= int(255 * 0.75) + 1  # beyond max_flow: darkened
     assert img[0, 1].min() > 100                    # half of max_flow: pale
+
+
+def test_swap_consistency_tells_matched_flow_from_a_constant_field():
+    rng = torch.Generator().manual_seed(0)
+    flow = torch.randn(2, 2, 6, 7, generator=rng) * 3
+    matched, constant = EPEAccumulator(), EPEAccumulator()
+    matched.add_swapped(flow, -flow)               # flow(2→1) = −flow(1→2): read from the images
+    constant.add_swapped(flow, flow)               # the same field whatever the frame order
+    assert matched.result()["swap_consistency"] == pytest.approx(1.0)
+    assert constant.result()["swap_consistency"] == pytest.approx(-1.0)
+    short = EPEAccumulator()                       # vectors shorter than COSINE_MIN_FLOW carry no direction
+    short.add_swapped(torch.full((1, 2, 3, 3), COSINE_MIN_FLOW / 4), torch.ones(1, 2, 3, 3))
+    assert short.result()["swap_consistency"] is None
+    assert EPEAccumulator().result()["swap_consistency"] is None

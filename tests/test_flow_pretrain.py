@@ -15,7 +15,7 @@ import torch
 import yaml
 
 from f2depth.data.sintel import list_pairs, write_flo
-from f2depth.flow import PWCLite, load_flow_model
+from f2depth.flow import FlowNetwork, PWCLite, load_flow_model
 from f2depth.flow.pretrain import PretrainConfig, _load_resume, clear_resume, pretrain
 from f2depth.flow.validate import evaluate_sintel
 from f2depth.params import ParamsError
@@ -95,6 +95,43 @@ def test_evaluate_sintel_scores_model_and_zero_flow(tmp_path):
     assert res["zero_flow"]["magnitude_ratio"] == 0 and res["zero_flow"]["cosine"] == 0
     assert math.isfinite(res["model"]["epe_all"]) and -1 <= res["model"]["cosine"] <= 1
     assert len(list((tmp_path / "fig").glob("*.png"))) == 1
+
+
+class _ConstantFlow(FlowNetwork):
+    """The same field (2, 1) px for every pair, whatever the images: no matching at all."""
+
+    def forward(self, img1, img2, with_backward=True):
+        f = img1.new_tensor([2.0, 1.0]).view(1, 2, 1, 1).expand(img1.shape[0], 2, *img1.shape[-2:])
+        return [f], ([f] if with_backward else None)
+
+    def features(self, img):
+        return [img]
+
+
+class _GlobalShift(_ConstantFlow):
+    """Reads one integer shift per pair from the images (best of |d| ≤ 3 px by mean |I2(p + d) − I1(p)|)."""
+
+    def forward(self, img1, img2, with_backward=True):
+        h, w = img1.shape[-2:]
+        shifts = [(dx, dy) for dx in range(-3, 4) for dy in range(-3, 4)]
+        err = [(img2[..., 3 + dy:h - 3 + dy, 3 + dx:w - 3 + dx] - img1[..., 3:h - 3, 3:w - 3]).abs().mean()
+               for dx, dy in shifts]
+        f = img1.new_tensor(shifts[int(torch.stack(err).argmin())], dtype=img1.dtype)
+        f = f.view(1, 2, 1, 1).expand(img1.shape[0], 2, h, w)
+        return [f], ([-f] if with_backward else None)
+
+
+def test_swap_consistency_exposes_a_constant_network_that_scores_perfectly(tmp_path):
+    """Every sequence of make_set pans by (2, 1) px, so a constant (2, 1) field has EPE 0 and cosine 1 there —
+    the way a pretrained PWC-Lite that had learnt an image-independent bias looked good on the animated set
+    and anti-correlated on the prepared pairs. Only swap_consistency tells it from real matching."""
+    pairs = list_pairs(make_set(tmp_path / "s"), ("clean",), ["c_1"], require_flow=True)
+    const = evaluate_sintel(_ConstantFlow(), pairs, None)["model"]
+    matched = evaluate_sintel(_GlobalShift(), pairs, None)["model"]
+    assert const["epe_all"] == pytest.approx(0, abs=1e-5) and const["cosine"] == pytest.approx(1)
+    assert matched["epe_all"] == pytest.approx(0, abs=1e-5) and matched["cosine"] == pytest.approx(1)
+    assert const["swap_consistency"] == pytest.approx(-1)
+    assert matched["swap_consistency"] == pytest.approx(1)
 
 
 def run_stage(tmp_path: Path, monkeypatch, **section) -> dict:

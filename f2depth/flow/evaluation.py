@@ -13,6 +13,13 @@ EPE alone does not say whether a network under- or over-estimates motion, so ove
   whose true flow is longer than ``COSINE_MIN_FLOW`` = 0.1 px (shorter ones have no reliable direction);
   a zero-length prediction counts as cosine 0 (1 = right direction, −1 = opposite).
 
+Neither tells whether the flow comes from the images at all: a network that outputs the same field for
+every pair scores a good ``cosine`` on a set whose motion happens to share its direction. So, when the
+caller also runs the network on the swapped frames, ``swap_consistency`` is the mean cosine between
+``flow(1→2)`` and ``−flow(2→1)`` at the same pixel over the pixels where both are longer than
+``COSINE_MIN_FLOW`` (a sign check, not the warped forward–backward check): about +1 for flow that is
+matched from the images, about −1 for an image-independent (constant) output.
+
 **Low texture** (our definition): a pixel is low-texture when the local RMS gradient of the grey image
 (``0.2989 R + 0.5870 G + 0.1140 B`` in [0, 1]) is below ``LOW_TEXTURE_THRESHOLD`` = 0.01 per pixel
 (≈ 2.6 grey levels out of 255), where the RMS is taken over a ``LOW_TEXTURE_WINDOW`` = 7×7 box of
@@ -69,6 +76,8 @@ class EPEAccumulator:
         self.gt_length = 0.0      # Σ|gt| over the ``all`` pixels
         self.cosine_sum = 0.0     # Σ cos over the ``all`` pixels with |gt| > COSINE_MIN_FLOW
         self.cosine_count = 0
+        self.swap_sum = 0.0       # Σ cos(flow 1→2, −flow 2→1) (see the module docstring)
+        self.swap_count = 0
 
     def add(self, flow: torch.Tensor, gt: torch.Tensor, occluded: torch.Tensor | None = None,
             low_texture: torch.Tensor | None = None, valid: torch.Tensor | None = None) -> None:
@@ -102,11 +111,23 @@ class EPEAccumulator:
         self.cosine_sum += float(cos.clamp(-1.0, 1.0).sum())
         self.cosine_count += int(moving.sum())
 
+    def add_swapped(self, flow: torch.Tensor, swapped: torch.Tensor) -> None:
+        """``flow (B,2,H,W)`` predicted for (frame 1, frame 2) and ``swapped`` for (frame 2, frame 1), pixels,
+        x first → adds to ``swap_consistency`` (module docstring)."""
+        f = flow.detach().double()
+        b = -swapped.detach().double()
+        nf, nb = f.norm(dim=1), b.norm(dim=1)
+        both = (nf > COSINE_MIN_FLOW) & (nb > COSINE_MIN_FLOW)
+        cos = (f * b).sum(1)[both] / (nf[both] * nb[both])
+        self.swap_sum += float(cos.clamp(-1.0, 1.0).sum())
+        self.swap_count += int(both.sum())
+
     def result(self) -> dict[str, float | int | None]:
         """``{"epe_all", "epe_noc", "epe_occ", "epe_low_texture", "pixels_<set>", "magnitude_ratio",
         "cosine"}``: EPE None for empty sets; ``magnitude_ratio`` = Σ|flow| / Σ|gt| over ``all`` (None
         when Σ|gt| is 0 or no pixels); ``cosine`` = mean cosine over the ``all`` pixels with |gt| >
-        ``COSINE_MIN_FLOW`` (None when there is none)."""
+        ``COSINE_MIN_FLOW`` (None when there is none); ``swap_consistency`` (None without
+        :meth:`add_swapped` or pixels)."""
         out: dict[str, float | int | None] = {}
         for name in self.SETS:
             out[f"epe_{name}"] = self.sum[name] / self.count[name] if self.count[name] else None
@@ -114,6 +135,7 @@ class EPEAccumulator:
             out[f"pixels_{name}"] = self.count[name]
         out["magnitude_ratio"] = self.flow_length / self.gt_length if self.gt_length > 0 else None
         out["cosine"] = self.cosine_sum / self.cosine_count if self.cosine_count else None
+        out["swap_consistency"] = self.swap_sum / self.swap_count if self.swap_count else None
         return out
 
 

@@ -4,6 +4,7 @@ frame pairs whose flow follows from ground-truth depth and pose (rigid scene).
 Predictions are made at a chosen network size (frames area-resized) and the flow is resized back to the
 ground-truth resolution with its components rescaled (ARFlow's protocol), then scored by
 :class:`f2depth.flow.evaluation.EPEAccumulator` — next to zero flow on the same pixels as a baseline.
+The model also runs on the swapped frames, for ``swap_consistency`` (is the flow read from the images?).
 Low-texture pixels are those of :func:`f2depth.flow.evaluation.low_texture_mask` on frame 1.
 """
 
@@ -41,6 +42,7 @@ def _score(model, acc, zero, image1, image2, gt, occluded, valid, size, device):
     low = low_texture_mask(img)
     pred = predict(model, image1, image2, size, device)
     acc.add(pred, gt, occluded, low, valid)
+    acc.add_swapped(pred, predict(model, image2, image1, size, device))
     zero.add(torch.zeros_like(gt), gt, occluded, low, valid)
     return pred
 
