@@ -82,6 +82,9 @@ def write_inputs(root: Path, weights: dict[str, dict[str, float]] = WEIGHTS) -> 
         hist.mkdir(parents=True)
         (hist / "history.csv").write_text("epoch,total,val_abs_rel,val_a1\n0,,0.3,0.5\n1,0.9,0.25,0.6\n"
                                           "2,0.8,0.2,0.65\n")
+        (hist.parent / f"{v}.json").write_text(json.dumps({
+            "val_untrained": {"a1": 0.36, "abs_rel": 0.39}, "val_trained": {"a1": 0.5 + 0.01 * i},
+            "val_constant_depth": {"a1": 0.357, "abs_rel": 0.390}}))
     flow = root / "metrics" / "flow_finetune"
     for loss, ft in (("patch", 1.5), ("full", 2.5)):
         (flow / loss).mkdir(parents=True)
@@ -111,7 +114,8 @@ def run(root: Path) -> Path:
     spec.loader.exec_module(stage)
     stage.main(["tables.py", "--params", str(root / "params.yaml"),
                 "--metrics", str(root / "metrics" / "evaluate"), "--eval", str(root / "reports" / "eval"),
-                "--train-metrics", str(root / "metrics" / "train_depth"), "--out", str(root / "reports")])
+                "--train-metrics", str(root / "metrics" / "train_depth"), "--out", str(root / "reports"),
+                "--headline", str(root / "metrics" / "tables.json")])
     return root / "reports"
 
 
@@ -128,6 +132,17 @@ def reports(tmp_path_factory):
         mp.setenv("F2DEPTH_MLFLOW", "0")
         write_inputs(root)
         return run(root)
+
+
+def test_headline_metrics_file_puts_each_variant_beside_its_floors(reports):
+    doc = json.loads((reports.parent / "metrics" / "tables.json").read_text())
+    assert list(doc["variants"]) == list(VARIANTS)
+    for i, v in enumerate(VARIANTS):
+        row = doc["variants"][v]
+        evaluated = json.loads((reports.parent / "metrics" / "evaluate" / f"{v}.json").read_text())["nyu"]
+        assert row["nyu_a1"] == evaluated["a1"] and row["nyu_abs_rel"] == evaluated["abs_rel"]
+        assert (row["untrained_a1"], row["untrained_abs_rel"]) == (0.36, 0.39)
+        assert (row["constant_depth_a1"], row["constant_depth_abs_rel"]) == (0.357, 0.390)
 
 
 def test_every_table_in_three_formats(reports):
