@@ -137,7 +137,7 @@ def reports(tmp_path_factory):
 def test_headline_metrics_file_puts_each_variant_beside_its_floors(reports):
     doc = json.loads((reports.parent / "metrics" / "tables.json").read_text())
     assert list(doc["variants"]) == list(VARIANTS)
-    for i, v in enumerate(VARIANTS):
+    for v in VARIANTS:
         row = doc["variants"][v]
         evaluated = json.loads((reports.parent / "metrics" / "evaluate" / f"{v}.json").read_text())["nyu"]
         assert row["nyu_a1"] == evaluated["a1"] and row["nyu_abs_rel"] == evaluated["abs_rel"]
