@@ -1,8 +1,20 @@
-"""Reading ``params.yaml``: stage scripts take their section from here and nothing else."""
+"""Reading ``params.yaml``: stage scripts take their section from here and nothing else.
+
+``section(params, "poses", PosesConfig)`` maps a section onto a frozen dataclass by its annotations, and
+``value(params, "seed", int)`` reads one key; both raise :class:`ParamsError` with one line naming the file,
+the dotted key and what is expected.
+"""
 
 from __future__ import annotations
 
+import dataclasses
+import difflib
+import math
+import operator
 import os
+import re
+import types
+import typing
 from pathlib import Path
 from typing import Any
 
@@ -50,6 +62,162 @@ def resolve_device(name: str) -> str:
     return name
 
 
+# ---- the one loader: a params section → a frozen dataclass -------------------------------------------
+
+class Device(str):
+    """Annotation of a device key: ``cpu``, ``cuda``, ``cuda:N`` or ``auto`` (checked by the loader)."""
+
+
+_DEVICE = re.compile(r"cpu|auto|cuda(:\d+)?")
+#: Range rules a dataclass field may declare in its metadata, e.g. ``field(metadata={"min": 1})``.
+RULES = {"min": (operator.ge, "a value >= {}"), "max": (operator.le, "a value <= {}"),
+         "gt": (operator.gt, "a value > {}"), "multiple_of": (lambda v, m: v % m == 0, "a multiple of {}")}
+
+
+def section(params: dict[str, Any], key: str, cls: type, *more: type, **given: Any) -> Any:
+    """The params section ``key`` (dotted) as an instance of the frozen dataclass ``cls``.
+
+    Every key of the section must be a field of ``cls`` (or of one of ``more``: a section shared by a library
+    config and a stage's own keys; a tuple of instances is then returned), and every field must be in the
+    section or in ``given`` (values from elsewhere: a CLI flag, a top-level key); params.yaml is the one
+    source of defaults, so a dataclass default never stands in for a missing key (except for a field marked
+    ``field(metadata={"fixed": True})``: a constant of the method, not a parameter). Values are checked
+    against the field's type (:func:`value`) and its metadata rules (:data:`RULES`); a ``__post_init__``
+    ValueError or TypeError becomes a ParamsError too, under ``key.field`` when its message starts with a
+    field's name. Every error is one line naming the file and the dotted key.
+    """
+    node = get(params, key)
+    out = _build(_file(params), key, node, (cls, *more), given)
+    return tuple(out) if more else out[0]
+
+
+def value(params: dict[str, Any], key: str, kind: Any, **rules: Any) -> Any:
+    """The params value ``key`` (dotted) checked against the type ``kind`` and :data:`RULES`
+    (``value(p, "lambda3", float, min=0)``)."""
+    return _check(_file(params), key, get(params, key), kind, rules)
+
+
+def device(params: dict[str, Any]) -> str:
+    """The ``device`` key, checked (:class:`Device`) and resolved (:func:`resolve_device`)."""
+    name = value(params, "device", Device)
+    try:
+        return resolve_device(name)
+    except ParamsError as exc:
+        raise ParamsError(f"{_file(params)}: {exc}") from None
+
+
+def _file(params: dict[str, Any]) -> str:
+    return str(params.get("_file", DEFAULT_PARAMS))
+
+
+def _build(path: str, key: str, node: Any, classes: tuple[type, ...], given: dict[str, Any]) -> list[Any]:
+    if not isinstance(node, dict):
+        raise ParamsError(f"{path}: {key}: expected a section of keys, got {node!r}")
+    fields = {f.name: (cls, f) for cls in reversed(classes) for f in dataclasses.fields(cls)
+              if f.init and not f.metadata.get("fixed")}
+    if set(given) - set(fields):
+        raise TypeError(f"{key}: given values {sorted(set(given) - set(fields))} are no fields of {classes}")
+    unknown = sorted(set(node) - set(fields))
+    if unknown:
+        hints = [f"{key}.{k}: did you mean {m[0]}?" for k in unknown
+                 if (m := difflib.get_close_matches(k, list(fields), n=1))]
+        raise ParamsError(f"{path}: {key}: unknown keys {unknown}" + "".join(f"; {h}" for h in hints)
+                          + ("" if hints else f"; known: {', '.join(sorted(fields))}"))
+    kwargs: dict[type, dict[str, Any]] = {cls: {} for cls in classes}
+    hints = {cls: typing.get_type_hints(cls) for cls in classes}
+    for name, (cls, f) in fields.items():
+        if name in given:
+            kwargs[cls][name] = given[name]
+        elif name not in node:
+            raise ParamsError(f"{path}: missing parameter '{key}.{name}'; add it to {path}")
+        else:
+            kwargs[cls][name] = _check(path, f"{key}.{name}", node[name], hints[cls][name], f.metadata)
+    out = []
+    for cls in classes:
+        try:
+            out.append(cls(**kwargs[cls]))
+        except (TypeError, ValueError) as exc:  # "field ..." is reported as key.field, "key.field ..." as is
+            first = str(exc).split(" ")[0]
+            prefix = "" if first.startswith(f"{key}.") else f"{key}." if first in fields else f"{key}: "
+            raise ParamsError(f"{path}: {prefix}{exc}") from None
+    return out
+
+
+def _check(path: str, key: str, raw: Any, kind: Any, rules: Any = None) -> Any:
+    """``raw`` as type ``kind`` (int, float, str, bool, Device, Literal, Optional, tuple, list, dict, Any,
+    a dataclass) and within ``rules``; else a ParamsError naming ``path: key``."""
+    v = _coerce(path, key, raw, kind)
+    for rule, limit in (rules or {}).items():
+        test, text = RULES[rule]
+        if v is not None and not test(v, limit):
+            raise ParamsError(f"{path}: {key} is {v!r}; set it to {text.format(limit)}")
+    return v
+
+
+def _coerce(path: str, key: str, raw: Any, kind: Any) -> Any:
+    origin, args = typing.get_origin(kind), typing.get_args(kind)
+
+    def bad(expected: str) -> ParamsError:
+        return ParamsError(f"{path}: {key} is {raw!r}; set it to {expected}")
+
+    if kind is Any:
+        return raw
+    if origin in (typing.Union, types.UnionType):
+        if raw is None and type(None) in args:
+            return None
+        rest = [a for a in args if a is not type(None)]
+        if len(rest) == 1:
+            return _coerce(path, key, raw, rest[0])
+        raise TypeError(f"{key}: unsupported annotation {kind}")
+    if origin is typing.Literal:
+        if raw not in args or isinstance(raw, bool) != isinstance(args[0], bool):
+            raise bad("one of " + ", ".join(str(a) for a in args))
+        return raw
+    if origin in (tuple, list):
+        if not isinstance(raw, (list, tuple)):
+            raise bad("a list [...]")
+        if origin is tuple and not (len(args) == 2 and args[1] is Ellipsis):
+            if len(raw) != len(args):
+                raise bad(f"a list of {len(args)} values")
+            items = [_coerce(path, f"{key}[{i}]", x, a) for i, (x, a) in enumerate(zip(raw, args))]
+        else:
+            items = [_coerce(path, f"{key}[{i}]", x, args[0] if args else Any) for i, x in enumerate(raw)]
+        return origin(items)
+    if kind is dict or origin is dict:
+        if not isinstance(raw, dict):
+            raise bad("a mapping {key: value}")
+        return dict(raw)
+    if dataclasses.is_dataclass(kind):
+        return _build(path, key, raw, (kind,), {})[0]
+    if kind is bool:
+        if not isinstance(raw, bool):
+            raise bad("true or false" + (" (YAML booleans, without quotes)" if isinstance(raw, str) else ""))
+        return raw
+    if kind is int:
+        if isinstance(raw, bool) or not isinstance(raw, (int, float)) or (
+                isinstance(raw, float) and not raw.is_integer()):
+            raise bad("an integer")
+        return int(raw)
+    if kind is float:
+        if isinstance(raw, str):  # YAML 1.1 reads 1e-4 (no dot) as a string
+            try:
+                raw = float(raw)
+            except ValueError:
+                raise bad("a finite number") from None
+        if isinstance(raw, bool) or not isinstance(raw, (int, float)) or not math.isfinite(raw):
+            raise bad("a finite number")
+        return float(raw)
+    if kind is Device:
+        if not isinstance(raw, str) or not _DEVICE.fullmatch(raw):
+            raise bad("cpu, cuda, cuda:N or auto")
+        return str(raw)
+    if kind is str:
+        if not isinstance(raw, str):
+            raise bad("a string")
+        return raw
+    raise TypeError(f"{key}: unsupported annotation {kind}")
+
+
 #: The pretrained starts of the paper's model: params key → what file it must name.
 PRETRAINED_STARTS = {
     "train_depth.imagenet_weights": "a torchvision resnet18 ImageNet state_dict (.pth), the start of both "
@@ -68,21 +236,21 @@ def pretrained_starts(params: dict[str, Any], keys: tuple[str, ...]) -> dict[str
     the opt-out) before any work is done. With ``allow_random_init: true`` (the CPU default) an unset key
     means a random start.
     """
-    path = params.get("_file", "params.yaml")
+    path = _file(params)
     allow = get(params, "allow_random_init")
     if not isinstance(allow, bool):
         raise ParamsError(f"{path}: allow_random_init must be true or false, got {allow!r}")
     out: dict[str, str | None] = {}
     for key in keys:
-        value = get(params, key, None)
-        if value in (None, ""):
+        file = get(params, key, None)
+        if file in (None, ""):
             if not allow:
                 raise ParamsError(f"{path}: {key} is not set; the paper's model needs "
                                   f"{PRETRAINED_STARTS[key]}. Point {key} at that file, or set "
                                   "allow_random_init: true to train from random weights")
             out[key] = None
             continue
-        if not Path(value).is_file():
-            raise ParamsError(f"{path}: {key} = {value}: file not found; it must be {PRETRAINED_STARTS[key]}")
-        out[key] = str(value)
+        if not Path(file).is_file():
+            raise ParamsError(f"{path}: {key} = {file}: file not found; it must be {PRETRAINED_STARTS[key]}")
+        out[key] = str(file)
     return out

@@ -19,17 +19,18 @@ with flip post-processing, and is timed at `evaluate.timing_height` × `timing_w
 and mirrors the numbers to an MLflow child run `evaluate@NAME`.
 """
 
-from __future__ import annotations
-
 import argparse
 import sys
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Literal
 
 import torch
 
 from f2depth import params as P
 from f2depth import tracking
+from f2depth.data.nyu_labeled import GT_KEYS
 from f2depth.depth import load_checkpoint, read_checkpoint
 from f2depth.eval import registry
 from f2depth.eval.inputs import limit
@@ -40,18 +41,22 @@ from f2depth.stage import run_stage
 TRAINED_KEYS = ("flow_model", "weights", "lambda_sources", "epochs", "batch_size", "seeds")
 
 
-def suite_config(p: dict, device: str) -> SuiteConfig:
-    e = P.get(p, "evaluate")
-    keys = ("height", "width", "interpolation", "upsample", "decoder_upsample", "batch_size", "timing_height",
-            "timing_width", "timing_repeats", "timing_warmup", "figure_images", "figure_width")
-    return SuiteConfig(nyu_crop=str(P.get(p, "evaluate.nyu_crop")), device=device,
-                       datasets=tuple(P.get(p, "evaluate.datasets")), progress=True,
-                       **{k: e[k] for k in keys if k in e})
+@dataclass(frozen=True)
+class EvaluateStage:
+    """The ``evaluate`` keys that are no part of SuiteConfig (the protocols read the first two themselves)."""
+
+    nyu_gt: Literal[GT_KEYS]
+    sevenscenes_stride: int = field(metadata={"min": 1})
+    max_images: int | None = field(metadata={"min": 1})  # per test set; null: all
+    threads: int | None = field(metadata={"min": 1})  # null: torch's default
 
 
-def load_sets(p: dict, names: tuple[str, ...]) -> dict:
+def config_from_params(p: dict) -> tuple[SuiteConfig, EvaluateStage]:
+    return P.section(p, "evaluate", SuiteConfig, EvaluateStage, device=P.device(p), progress=True)
+
+
+def load_sets(p: dict, names: tuple[str, ...], most: int | None) -> dict:
     """The test sets named in `evaluate.datasets`, cut to `evaluate.max_images` each when set."""
-    most = P.get(p, "evaluate.max_images", None)
     return {name: limit(registry.protocol(name).open(lambda key: P.get(p, key)), most) for name in names}
 
 
@@ -64,19 +69,19 @@ def main(argv: list[str]) -> None:
     ap.add_argument("--reports", default="reports/eval", help="folder of <variant>/ (details, CSV, figures)")
     args = ap.parse_args(argv[1:])
     p = P.load(args.params)
+    cfg, stage = config_from_params(p)
     if args.variant not in P.get(p, "variants"):
         raise P.ParamsError(f"{p['_file']}: no variant '{args.variant}' under `variants`")
-    seeds = [int(s) for s in P.get(p, "train_depth.seeds")]
+    seeds = P.value(p, "train_depth.seeds", list[int])
     model_dir = Path(args.models) / f"depth_{args.variant}"
     files = [model_dir / f"seed{s}.pt" for s in seeds]
     missing = [str(f) for f in files if not f.is_file()]
     if missing:
         raise SystemExit(f"{', '.join(missing)}: not found; run `dvc repro train_depth@{args.variant}` "
                          "(train_depth.seeds lists the seeds to evaluate)")
-    if P.get(p, "evaluate.threads", None):
-        torch.set_num_threads(int(P.get(p, "evaluate.threads")))
-    cfg = suite_config(p, P.resolve_device(str(P.get(p, "device"))))
-    sets = load_sets(p, cfg.datasets)
+    if stage.threads:
+        torch.set_num_threads(stage.threads)
+    sets = load_sets(p, cfg.datasets, stage.max_images)
     out_dir = Path(args.reports) / args.variant
     t0 = time.perf_counter()
     headlines, details, rows, kept = [], {}, {}, None

@@ -6,9 +6,8 @@ Usage: python stages/flow_figure.py [params.yaml]
 Pairs: `flow_figure.pairs` of the flow_finetune EPE test pairs (spread evenly); writes `flow_figure.out`.
 """
 
-from __future__ import annotations
-
 import sys
+from dataclasses import dataclass, field
 
 from f2depth import params as P
 from f2depth import tracking
@@ -21,21 +20,36 @@ from f2depth.stage import run_stage
 TITLES = {"full": "Fine-tuned full", "patch": "Fine-tuned patch (F²Depth)"}
 
 
+@dataclass(frozen=True)
+class FigureParams:
+    """The ``flow_figure`` section."""
+
+    pairs: int = field(metadata={"min": 1})
+    out: str
+
+
+def config_from_params(p: dict) -> FigureParams:
+    return P.section(p, "flow_figure", FigureParams)
+
+
 def main(argv: list[str]) -> None:
     p = P.load(argv[1] if len(argv) > 1 else P.DEFAULT_PARAMS)
-    device = P.resolve_device(str(P.get(p, "device", "auto")))
+    cfg = config_from_params(p)
+    holdout = P.value(p, "flow_finetune.holdout_scenes", int, min=0)
+    losses = P.value(p, "flow_finetune.losses", tuple[str, ...])
+    template, pretrained = P.value(p, "flow_finetune.model", str), P.value(p, "flow_finetune.pretrained", str)
+    device = P.device(p)
     ds = PreparedSet(P.get(p, "data.prepared"))
-    split = split_pairs(ds, int(P.get(p, "flow_finetune.holdout_scenes")))
-    pairs = list(gt_pairs(ds, split.test, limit=int(P.get(p, "flow_figure.pairs"))))
+    split = split_pairs(ds, holdout)
+    pairs = list(gt_pairs(ds, split.test, limit=cfg.pairs))
     if not pairs:
         raise SystemExit(f"{ds.root}: no held-out pairs with ground truth to draw; the figure needs the "
                          "synthetic data (data_source: synthetic) and flow_finetune.holdout_scenes >= 1")
-    template = str(P.get(p, "flow_finetune.model"))
-    models = {"Pretrained": load_flow_model(P.get(p, "flow_finetune.pretrained"))}
+    models = {"Pretrained": load_flow_model(pretrained)}
     for loss in ("full", "patch"):
-        if loss in P.get(p, "flow_finetune.losses"):
+        if loss in losses:
             models[TITLES[loss]] = load_flow_model(template.format(loss=loss))
-    out = P.get(p, "flow_figure.out")
+    out = cfg.out
     rows = comparison_rows(models, pairs, device)
     render_flow_comparison(rows, out)
     epe = {f"epe.{row.pair_id}.{title}": e[0]

@@ -13,15 +13,15 @@ model on the held-out test pairs and on up to `eval_train_pairs` training pairs,
 The training state goes to `<resume_dir>/<loss>.pt` after every epoch and is removed at the end.
 """
 
-from __future__ import annotations
-
 import argparse
 import csv
 import hashlib
 import io
 import sys
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Literal
 
 import torch
 
@@ -42,6 +42,27 @@ from f2depth.flow.finetune_data import FlowPairs, gt_pairs, split_pairs
 from f2depth.io import write_json, write_text
 from f2depth.keypoints.store import KeypointFile
 from f2depth.stage import run_stage
+
+
+@dataclass(frozen=True)
+class FinetuneStage:
+    """The ``flow_finetune`` keys that are no part of FinetuneConfig."""
+
+    losses: tuple[Literal[LOSSES], ...]
+    holdout_scenes: int = field(metadata={"min": 0})
+    eval_train_pairs: int = field(metadata={"min": 0})
+    workers: int = field(metadata={"min": 0})
+    pretrained: str
+    model: str  # {loss} = patch | full
+    out_dir: str
+    resume_dir: str
+
+
+def config_from_params(p: dict, loss: str = "patch") -> tuple[FinetuneConfig, FinetuneStage]:
+    smooth = P.value(p, "lambda_flow_smooth", float, min=0)
+    return P.section(p, "flow_finetune", FinetuneConfig, FinetuneStage, loss=loss,
+                     seed=P.value(p, "seed", int), smooth_weight=smooth)
+
 
 EPE_KEYS = ("epe_all", "epe_noc", "epe_low_texture", "epe_occ", "magnitude_ratio", "cosine", "pairs")
 
@@ -73,37 +94,23 @@ def main(argv: list[str]) -> None:
     ap.add_argument("--params", default=str(P.DEFAULT_PARAMS))
     args = ap.parse_args(argv[1:])
     p = P.load(args.params)
+    loss = args.loss
+    cfg, stage = config_from_params(p, loss)
     P.pretrained_starts(p, ("flow_pretrain.checkpoint",))  # the paper starts from ARFlow's Sintel model
-    s, loss = "flow_finetune.", args.loss
-    device = P.resolve_device(str(P.get(p, "device", "auto")))
-    w_scales = P.get(p, s + "w_scales")
-    if (not isinstance(w_scales, list) or not w_scales
-            or not all(isinstance(w, (int, float)) for w in w_scales)
-            or min(w_scales) < 0 or max(w_scales) <= 0):
-        raise P.ParamsError(f"{p['_file']}: flow_finetune.w_scales must be a list of non-negative weights "
-                            "per flow level, finest first, at least one positive (ARFlow: [1, 1, 1, 1, 0]); "
-                            f"got {w_scales!r}")
-    cfg = FinetuneConfig(loss=loss, epochs=int(P.get(p, s + "epochs")),
-                         batch_size=int(P.get(p, s + "batch_size")), lr=float(P.get(p, s + "lr")),
-                         patch_spacing=int(P.get(p, s + "patch_spacing")),
-                         w_scales=tuple(float(w) for w in w_scales), backward=bool(P.get(p, s + "backward")),
-                         smooth_weight=float(P.get(p, "lambda_flow_smooth")),
-                         augment=bool(P.get(p, s + "augment")), amp=bool(P.get(p, s + "amp")),
-                         seed=int(P.get(p, "seed")),
-                         occlusion=str(P.get(p, s + "occlusion", "forward_backward")))
+    device = P.device(p)
     ds = PreparedSet(P.get(p, "data.prepared"))
     kp_path = Path(P.get(p, "data.keypoints")) / "train.npz"
     keypoints = KeypointFile(kp_path) if loss == "patch" else None
-    split = split_pairs(ds, int(P.get(p, s + "holdout_scenes")))
-    pretrained = Path(P.get(p, s + "pretrained"))
+    split = split_pairs(ds, stage.holdout_scenes)
+    pretrained = Path(stage.pretrained)
     if not pretrained.is_file():
         raise SystemExit(f"{pretrained}: pretrained flow model not found; run `dvc repro flow_pretrain` or "
                          "point flow_finetune.pretrained at a models/flow_*.pt or an ARFlow *.pth.tar")
-    model_path = Path(str(P.get(p, s + "model")).format(loss=loss))
-    out_dir = Path(P.get(p, s + "out_dir"))
+    model_path = Path(stage.model.format(loss=loss))
+    out_dir = Path(stage.out_dir)
     history_csv, metrics_json = out_dir / loss / "history.csv", out_dir / f"{loss}.json"
-    resume_path = Path(P.get(p, s + "resume_dir")) / f"{loss}.pt"
-    train_limit = int(P.get(p, s + "eval_train_pairs"))
+    resume_path = Path(stage.resume_dir) / f"{loss}.pt"
+    train_limit = stage.eval_train_pairs
 
     torch.manual_seed(cfg.seed)
     t0 = time.perf_counter()
@@ -119,7 +126,7 @@ def main(argv: list[str]) -> None:
             run.log_metrics({k: v for k, v in row.items() if k != "epoch"}, step=epoch)
 
         info = finetune(model, FlowPairs(ds, split.train, keypoints), cfg, test, resume_path, fingerprint,
-                        device, int(P.get(p, s + "workers", 0)), on_epoch)
+                        device, stage.workers, on_epoch)
         write_history(history_csv, info["history"])
         save_flow_model(model_path, model,
                         config={"source": "flow_finetune", "loss": loss, "pretrained": str(pretrained),

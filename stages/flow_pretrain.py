@@ -13,10 +13,10 @@ model and of zero flow on the held-out sequences and, with `eval_prepared`, on t
 ground truth) and colour-wheel figures into `figure_dir`.
 """
 
-from __future__ import annotations
-
 import sys
 import time
+from dataclasses import dataclass, field
+from typing import Literal
 
 import torch
 
@@ -33,63 +33,81 @@ from f2depth.stage import run_stage
 METRICS = "metrics/flow_pretrain.json"
 
 
-def split_sequences(p: dict) -> tuple[list[str], list[str]]:
-    root, holdout = P.get(p, "data.sintel"), int(P.get(p, "flow_pretrain.holdout"))
-    seqs = list_sequences(root, P.get(p, "flow_pretrain.passes")[0])
-    if not 0 < holdout < len(seqs):
-        raise P.ParamsError(f"{p['_file']}: flow_pretrain.holdout = {holdout} must leave training and test "
-                            f"sequences among the {len(seqs)} in {root}")
-    return seqs[:-holdout], seqs[-holdout:]
+@dataclass(frozen=True)
+class PretrainStage:
+    """The ``flow_pretrain`` keys that are no part of PretrainConfig."""
+
+    network: str
+    checkpoint: str | None
+    source: Literal["synthetic", "sintel"]
+    passes: tuple[Literal["clean", "final"], ...]
+    holdout: int = field(metadata={"min": 1})
+    eval_prepared: bool
+    eval_prepared_pairs: int | None = field(metadata={"min": 1})  # null: all
+    figures: int = field(metadata={"min": 0})
+    figure_dir: str
+    model: str
+    resume_dir: str
+
+    def __post_init__(self) -> None:
+        if self.network not in NETWORKS:
+            raise ValueError(f"network = {self.network!r} is not a flow network; use one of "
+                             f"{sorted(NETWORKS)} (f2depth.flow.checkpoint.NETWORKS)")
+        if not self.passes:
+            raise ValueError("passes is empty; name the Sintel passes to train on and score (clean, final)")
+
+
+def config_from_params(p: dict) -> tuple[PretrainConfig, PretrainStage]:
+    return P.section(p, "flow_pretrain", PretrainConfig, PretrainStage, seed=P.value(p, "seed", int))
+
+
+def split_sequences(p: dict, stage: PretrainStage) -> tuple[list[str], list[str]]:
+    root = P.get(p, "data.sintel")
+    seqs = list_sequences(root, stage.passes[0])
+    if not stage.holdout < len(seqs):
+        raise P.ParamsError(f"{p['_file']}: flow_pretrain.holdout = {stage.holdout} must leave training and "
+                            f"test sequences among the {len(seqs)} in {root}")
+    return seqs[:-stage.holdout], seqs[-stage.holdout:]
 
 
 def main(argv: list[str]) -> None:
     p = P.load(argv[1] if len(argv) > 1 else P.DEFAULT_PARAMS)
+    cfg, stage = config_from_params(p)
     t0 = time.perf_counter()
     P.pretrained_starts(p, ("flow_pretrain.checkpoint",))  # the paper's start required unless allowed
-    section = P.get(p, "flow_pretrain")
-    if P.get(p, "flow_pretrain.source") not in ("synthetic", "sintel"):
-        raise P.ParamsError(f"{p['_file']}: flow_pretrain.source must be 'synthetic' or 'sintel'")
-    device = P.resolve_device(str(P.get(p, "device")))
-    root, passes = P.get(p, "data.sintel"), tuple(P.get(p, "flow_pretrain.passes"))
-    train_seqs, test_seqs = split_sequences(p)
-    network = str(P.get(p, "flow_pretrain.network"))
-    if network not in NETWORKS:
-        raise P.ParamsError(f"{p['_file']}: flow_pretrain.network = {network!r} is not a flow network; "
-                            f"use one of {sorted(NETWORKS)} (f2depth.flow.checkpoint.NETWORKS)")
-    cfg = PretrainConfig(**{k: int(section[k]) for k in ("height", "width", "raw_epochs", "census_epochs",
-                                                          "batch_size")},
-                         lr=float(section["lr"]), seed=int(P.get(p, "seed")), init=str(section["init"]))
-    figures, n_fig = P.get(p, "flow_pretrain.figure_dir"), int(P.get(p, "flow_pretrain.figures"))
-    metrics: dict = {"source": "arflow" if section.get("checkpoint") else str(section["source"]),
-                     "random_init": not section.get("checkpoint"),
+    device = P.device(p)
+    root, passes = P.get(p, "data.sintel"), stage.passes
+    train_seqs, test_seqs = split_sequences(p, stage)
+    figures, n_fig = stage.figure_dir, stage.figures
+    metrics: dict = {"source": "arflow" if stage.checkpoint else stage.source,
+                     "random_init": not stage.checkpoint,
                      "train_sequences": train_seqs, "heldout_sequences": test_seqs}
     with tracking.stage_run("flow_pretrain", p) as run:
-        if section.get("checkpoint"):
-            model = load_flow_model(section["checkpoint"], network)
-            metrics["imported"] = str(section["checkpoint"])
+        if stage.checkpoint:
+            model = load_flow_model(stage.checkpoint, stage.network)
+            metrics["imported"] = stage.checkpoint
         else:
             torch.manual_seed(cfg.seed)
-            model = build_network(network)
+            model = build_network(stage.network)
             metrics["training"] = pretrain(
-                model, list_pairs(root, passes, train_seqs), cfg, section["resume_dir"], device,
+                model, list_pairs(root, passes, train_seqs), cfg, stage.resume_dir, device,
                 on_epoch=lambda epoch, st: run.log_metrics({f"train.{k}": v for k, v in st.items()}, epoch))
-        save_flow_model(section["model"], model, config={"origin": metrics["source"], **vars(cfg)},
-                        params=section)
+        save_flow_model(stage.model, model, config={"origin": metrics["source"], **vars(cfg)},
+                        params=P.get(p, "flow_pretrain"))
         model.to(device).eval()
         for pass_name in passes:
             metrics[f"heldout_{pass_name}"] = evaluate_sintel(
                 model, list_pairs(root, (pass_name,), test_seqs, require_flow=True), (cfg.height, cfg.width),
                 device, figures, n_fig)
-        if P.get(p, "flow_pretrain.eval_prepared"):
+        if stage.eval_prepared:
             metrics["prepared"] = evaluate_prepared(model, P.get(p, "data.prepared"),
-                                                    P.get(p, "flow_pretrain.eval_prepared_pairs"), device,
-                                                    figures, n_fig)
+                                                    stage.eval_prepared_pairs, device, figures, n_fig)
         metrics["seconds"] = round(time.perf_counter() - t0, 1)
         write_json(METRICS, metrics)
         run.log_metrics({k: v for k, v in metrics.items() if k.startswith(("heldout_", "prepared"))})
-        run.log_artifact(section["model"])
+        run.log_artifact(stage.model)
         run.log_artifact(figures, "figures")
-    clear_resume(section["resume_dir"])
+    clear_resume(stage.resume_dir)
     for name, res in metrics.items():
         if isinstance(res, dict) and "model" in res:
             m, z = res["model"], res["zero_flow"]
@@ -102,7 +120,7 @@ def main(argv: list[str]) -> None:
                 print(f"flow_pretrain: WARNING {name}: flow(2→1) is not the reverse of flow(1→2) "
                       f"(swap cos {m['swap_consistency']:.2f}): the network's output does not follow the "
                       "images; its EPE and cosine there measure a constant field (docs/flow_pretrain.md)")
-    print(f"flow_pretrain: {metrics['seconds']} s → {section['model']}")
+    print(f"flow_pretrain: {metrics['seconds']} s → {stage.model}")
 
 
 

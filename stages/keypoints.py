@@ -8,45 +8,52 @@ Writes <data.keypoints>/train.npz (docs/formats.md), metrics/keypoints.json and 
 into keypoints.overlay_dir. Bad data or parameters end the stage with one line naming the file and the fix.
 """
 
-from __future__ import annotations
-
 import sys
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Literal
 
 from f2depth import params as P
 from f2depth import tracking
-from f2depth.data.errors import DataError
 from f2depth.io import write_json
 from f2depth.keypoints.extract import SOURCES, extract_keypoints
+from f2depth.keypoints.presets import PRESETS, get_preset
 from f2depth.stage import run_stage
 
 METRICS = "metrics/keypoints.json"
 
 
+@dataclass(frozen=True)
+class KeypointsParams:
+    """The ``keypoints`` section."""
+
+    source: Literal[SOURCES]
+    preset: Literal[tuple(PRESETS)]
+    options: dict  # overrides of the preset's fields
+    sequence: bool
+    workers: int = field(metadata={"min": 0})
+    overlays: int = field(metadata={"min": 0})
+    overlay_dir: str
+
+    def __post_init__(self) -> None:
+        get_preset(self.preset, **self.options)  # unknown or out-of-range options fail here, before any work
+
+
+def config_from_params(p: dict) -> KeypointsParams:
+    return P.section(p, "keypoints", KeypointsParams)
+
+
 def main(argv: list[str]) -> None:
     p = P.load(argv[1] if len(argv) > 1 else P.DEFAULT_PARAMS)
+    cfg = config_from_params(p)
     out_file = Path(P.get(p, "data.keypoints")) / "train.npz"
-    source = str(P.get(p, "keypoints.source"))
-    if source not in SOURCES:
-        raise SystemExit(f"{p.get('_file', 'params.yaml')}: keypoints.source is {source!r}; "
-                         f"set it to one of {', '.join(SOURCES)}")
-    try:
-        metrics = extract_keypoints(
-            prepared=P.get(p, "data.prepared"),
-            out_file=out_file,
-            overlay_dir=P.get(p, "keypoints.overlay_dir"),
-            preset=str(P.get(p, "keypoints.preset")),
-            options=P.get(p, "keypoints.options", None) or {},
-            workers=int(P.get(p, "keypoints.workers")),
-            sequence=bool(P.get(p, "keypoints.sequence", False)),
-            overlays=int(P.get(p, "keypoints.overlays")),
-            source=source,
-            nyu_raw=P.get(p, "data.nyu_raw") if source == "full_resolution" else None,
-        )
-    except DataError as exc:
-        raise SystemExit(f"keypoints: {exc}") from None
+    source = cfg.source
+    metrics = extract_keypoints(
+        prepared=P.get(p, "data.prepared"), out_file=out_file, overlay_dir=cfg.overlay_dir, preset=cfg.preset,
+        options=cfg.options, workers=cfg.workers, sequence=cfg.sequence, overlays=cfg.overlays, source=source,
+        nyu_raw=P.get(p, "data.nyu_raw") if source == "full_resolution" else None)
     write_json(METRICS, metrics)
-    tracking.mirror_stage("keypoints", p, metrics, artifacts=(P.get(p, "keypoints.overlay_dir"),))
+    tracking.mirror_stage("keypoints", p, metrics, artifacts=(cfg.overlay_dir,))
     per = metrics["points_per_image"]
     print(f"keypoints: {metrics['frames']} frames selected on the {source} image, {per['mean']:.0f} points "
           f"per image (min {per['min']}, max {per['max']}), {metrics['share_below_100']:.1%} below 100, "

@@ -10,7 +10,6 @@ has it).
 
 from __future__ import annotations
 
-import dataclasses
 import sys
 import time
 from typing import Any
@@ -21,41 +20,14 @@ from f2depth.data.prepared import PreparedSet
 from f2depth.io import write_json
 from f2depth.poses.estimate import PosesConfig, estimate_scenes, tuple_priors
 from f2depth.poses.metrics import prior_metrics
-from f2depth.poses.reconstruct import ReconstructConfig
 from f2depth.poses.store import write_poses
-from f2depth.poses.tracks import TrackerConfig
 from f2depth.stage import run_stage
 
 METRICS = "metrics/poses.json"
 
 
-def _section(cls: type, values: Any, key: str, path: str) -> Any:
-    """A config dataclass from a params sub-section; unknown keys are a ParamsError naming them."""
-    values = values or {}
-    names = {f.name for f in dataclasses.fields(cls)}
-    unknown = sorted(set(values) - names)
-    if not isinstance(values, dict) or unknown:
-        raise P.ParamsError(f"{path}: {key}: unknown keys {unknown}; known: {sorted(names)}")
-    try:
-        return cls(**values)
-    except (TypeError, ValueError) as exc:
-        raise P.ParamsError(f"{path}: {key}: {exc}") from None
-
-
 def config_from_params(p: dict[str, Any]) -> PosesConfig:
-    path = p.get("_file", "params.yaml")
-    try:
-        return PosesConfig(
-            tracker=_section(TrackerConfig, P.get(p, "poses.tracker"), "poses.tracker", path),
-            reconstruct=_section(ReconstructConfig, P.get(p, "poses.reconstruct"), "poses.reconstruct", path),
-            median_depth=float(P.get(p, "poses.median_depth")),
-            min_registered_share=float(P.get(p, "poses.min_registered_share")),
-            min_scene_points=int(P.get(p, "poses.min_scene_points")),
-            min_shared_points=int(P.get(p, "poses.min_shared_points")),
-            workers=int(P.get(p, "poses.workers")),
-        )  # fmt: skip
-    except ValueError as exc:
-        raise P.ParamsError(f"{path}: poses: {exc}") from None
+    return P.section(p, "poses", PosesConfig)
 
 
 def main(argv: list[str]) -> None:

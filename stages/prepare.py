@@ -1,34 +1,31 @@
 """DVC stage `prepare`: NYU raw video → data/prepared (usage: python stages/prepare.py [params.yaml])."""
 
-from __future__ import annotations
-
 import sys
+from dataclasses import dataclass
 
 from f2depth import params as P
 from f2depth import tracking
-from f2depth.data.prepare import PrepareConfig, SuperpixelParams, prepare
+from f2depth.data.prepare import PrepareConfig, prepare
 from f2depth.io import write_json
 from f2depth.stage import run_stage
 
 METRICS = "metrics/prepare.json"
 
 
+@dataclass(frozen=True)
+class SceneList:
+    """The ``prepare`` key that is no part of PrepareConfig."""
+
+    train_scenes_file: str | None  # one raw scene name a line; null: the scenes not in the test set
+
+
+def config_from_params(p: dict) -> tuple[PrepareConfig, SceneList]:
+    return P.section(p, "prepare", PrepareConfig, SceneList)
+
+
 def main(argv: list[str]) -> None:
     p = P.load(argv[1] if len(argv) > 1 else P.DEFAULT_PARAMS)
-    config = PrepareConfig(
-        height=int(P.get(p, "prepare.height")),
-        width=int(P.get(p, "prepare.width")),
-        frame_step=int(P.get(p, "prepare.frame_step")),
-        crop=int(P.get(p, "prepare.crop")),
-        p2net_cxcy_bug=bool(P.get(p, "prepare.p2net_cxcy_bug")),
-        superpixels=SuperpixelParams(
-            scale=float(P.get(p, "prepare.superpixels.scale")),
-            sigma=float(P.get(p, "prepare.superpixels.sigma")),
-            min_size=int(P.get(p, "prepare.superpixels.min_size")),
-        ),
-        workers=int(P.get(p, "prepare.workers")),
-        interpolation=str(P.get(p, "prepare.interpolation")),
-    )
+    config, scenes = config_from_params(p)
     metrics = prepare(
         nyu_raw=P.get(p, "data.nyu_raw"),
         nyu_labeled=P.get(p, "data.nyu_labeled"),
@@ -36,7 +33,7 @@ def main(argv: list[str]) -> None:
         out_dir=P.get(p, "data.prepared"),
         config=config,
         synth_gt=P.get(p, "data.synth_gt", None),
-        train_scenes_file=P.get(p, "prepare.train_scenes_file", None),
+        train_scenes_file=scenes.train_scenes_file,
     )
     write_json(METRICS, metrics)
     tracking.mirror_stage("prepare", p, metrics)

@@ -8,10 +8,9 @@ paths point at. With ``data_source: real`` nothing is generated (the root only g
 point the ``data.*`` paths at your copies, which this stage never writes or deletes.
 """
 
-from __future__ import annotations
-
 import sys
 from pathlib import Path
+from typing import Literal
 
 from f2depth import params as P
 from f2depth import tracking
@@ -22,11 +21,15 @@ from f2depth.synth import OutputPaths, SynthConfig, generate
 METRICS = Path("metrics/synth.json")
 
 
+def config_from_params(params: dict) -> SynthConfig:
+    return SynthConfig.from_params(P.get(params, "synth"), params["_file"])
+
+
 def main(argv: list[str]) -> None:
     params = P.load(argv[1] if len(argv) > 1 else P.DEFAULT_PARAMS)
-    source = params["_file"]
-    data_source = P.get(params, "data_source")
-    root = Path(P.get(params, "synth.root"))
+    data_source = P.value(params, "data_source", Literal["synthetic", "real"])
+    cfg = config_from_params(params)
+    root = Path(P.value(params, "synth.root", str))
     if data_source == "real":
         note = "data_source is 'real': nothing generated here; see params.yaml data.*\n"
         write_text(root / "README.txt", note)
@@ -34,9 +37,6 @@ def main(argv: list[str]) -> None:
         write_json(METRICS, {"data_source": "real", "generated": False, "frames": 0})
         print("synth: data_source is 'real', nothing generated")
         return
-    if data_source != "synthetic":
-        raise P.ParamsError(f"{source}: data_source must be 'synthetic' or 'real', got {data_source!r}")
-    cfg = SynthConfig.from_params(P.get(params, "synth"), source)
     paths = OutputPaths.under(root)
     metrics = generate(cfg, paths)
     metrics["generated"] = True

@@ -215,3 +215,13 @@ def test_full_finetune_loss_is_arflows_sintel_ft():
     assert stats_rm["photometric"] > 0 and stats_rm["noc_fraction"] > 0
     expect, _ = flow_loss(fw, bw, img1, img2, SINTEL_FT.with_changes(occ_from_back=True))
     assert float(loss_rm) == float(expect)
+
+
+def test_range_map_of_a_non_finite_flow_lands_nowhere():
+    flow = torch.zeros(1, 2, 4, 5)
+    flow[0, 0, 1, 1] = float("nan")
+    flow[0, 1, 2, 3] = float("inf")
+    count = range_map(flow)
+    assert torch.isfinite(count).all()
+    assert count.sum() == pytest.approx(18.0)  # the 18 finite pixels stay where they are
+    assert count[0, 0, 1, 1] == 0 and count[0, 0, 2, 3] == 0

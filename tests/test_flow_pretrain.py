@@ -15,8 +15,9 @@ import torch
 import yaml
 
 from f2depth.data.sintel import list_pairs, write_flo
+from f2depth.epochs import load_state
 from f2depth.flow import FlowNetwork, PWCLite, load_flow_model
-from f2depth.flow.pretrain import PretrainConfig, _load_resume, clear_resume, pretrain
+from f2depth.flow.pretrain import PretrainConfig, clear_resume, pretrain, run_fingerprint
 from f2depth.flow.validate import evaluate_sintel
 from f2depth.params import ParamsError
 
@@ -79,9 +80,10 @@ def test_pretrain_runs_both_phases_and_resumes_identically(tmp_path):
         assert torch.allclose(v, resumed.state_dict()[k], atol=1e-5), k
     # another configuration or data set does not resume from a foreign state
     state_file = tmp_path / "r2" / "last.pt"
-    assert _load_resume(state_file, TINY, len(pairs)) is not None
-    assert _load_resume(state_file, PretrainConfig(**{**vars(TINY), "lr": 2e-4}), len(pairs)) is None
-    assert _load_resume(state_file, TINY, len(pairs) + 1) is None
+    assert load_state(state_file, run_fingerprint(TINY, len(pairs)))[0] is not None
+    other = PretrainConfig(**{**vars(TINY), "lr": 2e-4})
+    assert load_state(state_file, run_fingerprint(other, len(pairs)))[0] is None
+    assert load_state(state_file, run_fingerprint(TINY, len(pairs) + 1))[0] is None
     clear_resume(tmp_path / "r2")
     assert not (tmp_path / "r2").exists()
 

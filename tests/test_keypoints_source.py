@@ -200,8 +200,8 @@ def test_stage_rejects_an_unknown_source_in_one_line(tmp_path):
     _params(tmp_path, raw, prepared, source="raw")
     run = _stage(tmp_path)
     assert run.returncode == 1
-    assert run.stderr.strip() == ("params.yaml: keypoints.source is 'raw'; set it to one of full_resolution, "
-                                  "prepared")
+    assert run.stderr.strip() == ("keypoints: params.yaml: keypoints.source is 'raw'; set it to one of "
+                                  "full_resolution, prepared")
 
 
 def test_lanczos_prepared_images_are_p2nets_and_pass_the_raw_check(tmp_path):

@@ -68,7 +68,8 @@ def tree(tmp_path, monkeypatch):
         "variants": {"full": {"flow_model": None}},
         "evaluate": {"nyu_gt": "depths", "nyu_crop": "eigen", "sevenscenes_stride": 1,
                      "datasets": ["nyu", "sevenscenes", "campus"], "height": None, "width": None,
-                     "interpolation": "area", "upsample": "nearest", "batch_size": 2, "max_images": None,
+                     "interpolation": "area", "upsample": "nearest", "decoder_upsample": "bilinear",
+                     "batch_size": 2, "max_images": None,
                      "threads": 1, "timing_height": 64, "timing_width": 64, "timing_repeats": 2,
                      "timing_warmup": 1, "figure_images": 2, "figure_width": 80},
     }  # fmt: skip

@@ -1,4 +1,4 @@
-"""Tests for f2depth.train.loop and f2depth.train.checkpoint: resume = uninterrupted, NaN guard, history."""
+"""Tests for f2depth.train.loop on f2depth.epochs: resume = uninterrupted, non-finite policy, history."""
 
 from __future__ import annotations
 
@@ -6,12 +6,13 @@ import pytest
 import torch
 import train_fakes
 
+from f2depth import epochs as ckpt
 from f2depth.depth import DepthModel, DepthModelConfig
+from f2depth.epochs import NonFiniteEpochError, history_csv
 from f2depth.flow import PWCLite
-from f2depth.losses import LossWeights, NonFiniteLossError
-from f2depth.train import checkpoint as ckpt
+from f2depth.losses import LossWeights
 from f2depth.train.data import DataConfig, TupleDataset
-from f2depth.train.loop import HISTORY_COLUMNS, LoopConfig, fit, history_csv, seed_everything
+from f2depth.train.loop import HISTORY_COLUMNS, LoopConfig, fit, seed_everything
 from f2depth.train.schedule import LRSchedule
 from f2depth.train.step import StepConfig
 from f2depth.train.teacher import FlowTeacher
@@ -58,7 +59,7 @@ def test_resumed_run_ends_with_the_same_weights(dataset, tmp_path):
         fit(new_model(), dataset, None, STEP, CONFIG, checkpoint=tmp_path / "b.pt", fingerprint="run",
             validate=fake_validate, on_epoch=kill_after_first)
     state, _ = ckpt.load_state(tmp_path / "b.pt", "run")
-    assert state["epoch"] == 1 and state["sampler"] == {"seed": 7, "epoch": 1}
+    assert state["epoch"] == 1 and state["run"] == "train_depth"
     torch.manual_seed(12345)  # a new process: global RNG state differs until the checkpoint restores it
     replayed = []
     resumed_model = new_model()
@@ -87,12 +88,13 @@ def test_other_fingerprint_starts_afresh(dataset, tmp_path):
     assert off.resumed_from == 0 and off.resume_note == "resume disabled"
 
 
-def test_nan_guard_stops_the_loop_naming_the_term(dataset, tmp_path):
+def test_all_non_finite_epoch_stops_the_loop_naming_the_term(dataset, tmp_path):
     torch.manual_seed(0)
     broken = PWCLite()
     with torch.no_grad():
         broken.flow_estimators.predict_flow[0].weight.fill_(float("nan"))
-    with pytest.raises(NonFiniteLossError, match=r"loss term 'rigid' is nan \(epoch 1, step 0\)"):
+    with pytest.raises(NonFiniteEpochError, match=r"^train_depth: all 2 steps of epoch 1 had a non-finite "
+                       r"loss \(last: loss term 'rigid' is nan \(epoch 1, step 1\)"):
         fit(new_model(), dataset, FlowTeacher(broken), StepConfig(LossWeights(), min_area=40), CONFIG,
             checkpoint=tmp_path / "n.pt", fingerprint="nan")
     assert not (tmp_path / "n.pt").exists()  # nothing written for the failed epoch
@@ -100,7 +102,8 @@ def test_nan_guard_stops_the_loop_naming_the_term(dataset, tmp_path):
 
 def test_history_csv_columns_and_blanks():
     text = history_csv([{"epoch": 0, "val_a1": 0.25, "val_abs_rel": 0.5},
-                        {"epoch": 1, "ph": 0.1234567, "total": 0.2, "lr": 1e-4, "seconds": 1.5}])
+                        {"epoch": 1, "ph": 0.1234567, "total": 0.2, "lr": 1e-4, "seconds": 1.5}],
+                       HISTORY_COLUMNS)
     lines = text.splitlines()
     assert lines[0].split(",") == HISTORY_COLUMNS
     assert lines[1].split(",")[HISTORY_COLUMNS.index("val_a1")] == "0.25"

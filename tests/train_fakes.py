@@ -92,7 +92,8 @@ def write_params(root: Path, prepared: Path, mat: Path, splits: Path, flow: Path
     """A params.yaml for the stage, with the variants of params.yaml and tiny training settings."""
     td = {"epochs": 2, "batch_size": 2, "lr": [1e-4, 1e-5, 1e-6], "lr_epochs": [27, 15, 2], "num_points": 50,
           "imagenet_weights": None, "augment": True, "seeds": [0], "workers": 0, "val_max_images": 2,
-          "checkpoint_dir": str(root / "ckpt"), "amp": False}
+          "checkpoint_dir": str(root / "ckpt"), "amp": False, "init_depth": None, "pose_prior": "none",
+          "sync_bn": True, "diagnostic_tuples": 64}
     td.update(train)
     off = root / "ablation_off.yaml"
     off.write_text("lambda_rigid: 0.0\nlambda3: 0.0\n")

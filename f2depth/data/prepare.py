@@ -58,18 +58,19 @@ class SuperpixelParams:
 
 @dataclass(frozen=True)
 class PrepareConfig:
-    height: int
-    width: int
-    frame_step: int = 10
-    crop: int = 16
+    """The ``prepare`` section (its ranges checked by f2depth.params.section). The depth network's encoder
+    halves the image five times (P²Net's ResNet-18), so a training size must be a multiple of 32."""
+
+    height: int = field(metadata={"min": 32, "multiple_of": 32})
+    width: int = field(metadata={"min": 32, "multiple_of": 32})
+    frame_step: int = field(default=10, metadata={"min": 1})
+    crop: int = field(default=16, metadata={"min": 0})
     p2net_cxcy_bug: bool = False
     superpixels: SuperpixelParams = field(default_factory=SuperpixelParams)
-    workers: int = 1
+    workers: int = field(default=1, metadata={"min": 0})
     interpolation: str = "area"  # the shrinking filter of the images (f2depth.data.images.INTERPOLATIONS)
 
     def __post_init__(self) -> None:
-        if self.height < 1 or self.width < 1 or self.frame_step < 1 or self.crop < 0 or self.workers < 0:
-            raise ValueError(f"invalid prepare configuration {self}")
         if self.interpolation not in INTERPOLATIONS:
             raise ValueError(f"prepare.interpolation must be one of {list(INTERPOLATIONS)}, "
                              f"got {self.interpolation!r}")

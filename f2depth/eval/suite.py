@@ -54,15 +54,15 @@ class SuiteConfig:
     interpolation: str = "area"
     upsample: str = "nearest"
     decoder_upsample: str = "bilinear"  # the depth decoder's ×2 upsampling at test time (P²Net's evaluation)
-    batch_size: int = 4
+    batch_size: int = field(default=4, metadata={"min": 1})
     device: str = "cpu"
     datasets: tuple[str, ...] = DATASETS
-    timing_height: int = 288
-    timing_width: int = 384
-    timing_repeats: int = 20
-    timing_warmup: int = 3
-    figure_images: int = 4
-    figure_width: int = 320
+    timing_height: int = field(default=288, metadata={"min": 32})
+    timing_width: int = field(default=384, metadata={"min": 32})
+    timing_repeats: int = field(default=20, metadata={"min": 1})
+    timing_warmup: int = field(default=3, metadata={"min": 0})
+    figure_images: int = field(default=4, metadata={"min": 0})
+    figure_width: int = field(default=320, metadata={"min": 1})
     progress: bool = False
 
     def __post_init__(self) -> None:

@@ -12,46 +12,42 @@ network predicts both directions at all its levels (PWC-Lite: five), and :func:`
   map instead of the forward–backward check when ``occlusion`` is ``range_map``.
 
 Adam with ARFlow's settings (betas 0.9/0.999, eps 1e-7, weight decay 1e-6 on weights, none on biases) and
-a constant learning rate (paper: 5e-5, 37 epochs, batch 20). A step with a non-finite loss is skipped.
+a constant learning rate (paper: 5e-5, 37 epochs, batch 20).
 
 **Mixed precision** (``amp``, off by default and in the ``paper`` profile: ARFlow trains in float32): the
 network runs under ``torch.autocast`` (CUDA float16, CPU bfloat16) and the loss in float32 with autocast
 off; on CUDA a GradScaler scales the loss.
 
-**Resuming.** After every epoch the model, the optimiser, the grad scaler, the epoch and the history are
-written atomically to ``resume_path`` together with a fingerprint (configuration, training pairs and
-whatever the caller adds, e.g. hashes of the pretrained model and the keypoints). A run whose fingerprint
-matches continues after the last finished epoch, so a crash loses at most the epoch in progress; shuffling
-and augmentation of epoch e come from a generator seeded by (seed, e), so a resumed run ends with the same
-weights as an uninterrupted one. Any other state file is ignored and overwritten.
+**Epochs** are :mod:`f2depth.epochs`: a step with a non-finite loss is skipped and counted, an epoch of
+nothing else stops the run; after every epoch the model, the optimiser, the grad scaler and the history
+are written atomically to ``resume_path`` with a fingerprint (configuration, training pairs and whatever
+the caller adds, e.g. hashes of the pretrained model and the keypoints); a matching file is continued after
+its last finished epoch. Shuffling and augmentation of epoch e come from a generator seeded by (seed, e),
+so a resumed run ends with the same weights as an uninterrupted one.
 """
 
 from __future__ import annotations
 
-import math
 import os
 import time
 import warnings
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from dataclasses import asdict, dataclass
-from pathlib import Path
+from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import torch
-from tqdm import tqdm
 
+from f2depth.epochs import EpochLoop
+from f2depth.epochs import fingerprint as hash_settings
 from f2depth.flow.augment import augment_batch
 from f2depth.flow.evaluation import EPEAccumulator
 from f2depth.flow.finetune_data import FlowPairs, GTPair, collate
 from f2depth.flow.loss import SINTEL_FT, FlowLossConfig, flow_loss
-from f2depth.flow.network import FlowNetwork
+from f2depth.flow.network import FlowNetwork, make_optimizer
 from f2depth.flow.patch_loss import FinetuneLossConfig, finetune_loss
-from f2depth.io import torch_save
 from f2depth.precision import autocast, full_precision, grad_scaler
 
 LOSSES = ("patch", "full")
-RESUME_FORMAT = "f2depth.flow_finetune_resume"
-RESUME_VERSION = 2
 TRAIN_COLUMNS = ("loss", "photometric", "smooth", "used_pixels", "coverage", "noc_fraction")
 EPE_COLUMNS = ("epe_all", "epe_noc", "epe_low_texture")
 HISTORY_COLUMNS = ("epoch", *TRAIN_COLUMNS, "steps", "skipped_steps", *EPE_COLUMNS, "seconds")
@@ -59,10 +55,12 @@ HISTORY_COLUMNS = ("epoch", *TRAIN_COLUMNS, "steps", "skipped_steps", *EPE_COLUM
 
 @dataclass(frozen=True)
 class FinetuneConfig:
+    """The training keys of the ``flow_finetune`` section (ranges checked by f2depth.params.section)."""
+
     loss: str = "patch"               # patch | full
-    epochs: int = 6
-    batch_size: int = 4
-    lr: float = 5e-5
+    epochs: int = field(default=6, metadata={"min": 0})
+    batch_size: int = field(default=4, metadata={"min": 1})
+    lr: float = field(default=5e-5, metadata={"gt": 0})
     patch_spacing: int = 2
     w_scales: tuple[float, ...] = (1.0,)  # patch: weight per level, finest first (ARFlow: 1, 1, 1, 1, 0)
     backward: bool = False            # patch: also the backward term (ARFlow's with_bk)
@@ -70,7 +68,7 @@ class FinetuneConfig:
     occlusion: str = "forward_backward"  # the paper's check; "range_map" for a degenerate pretrained flow
     augment: bool = True
     amp: bool = False                 # autocast the network (CUDA float16, CPU bfloat16)
-    weight_decay: float = 1e-6
+    weight_decay: float = field(default=1e-6, metadata={"fixed": True})  # ARFlow's
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -78,6 +76,7 @@ class FinetuneConfig:
             raise ValueError(f"FinetuneConfig.loss must be one of {LOSSES}, got {self.loss!r}")
         if not isinstance(self.w_scales, tuple):
             raise TypeError(f"FinetuneConfig.w_scales must be a tuple, got {type(self.w_scales).__name__}")
+        self.patch_loss_config()  # checks occlusion, patch_spacing and w_scales
 
     def patch_loss_config(self) -> FinetuneLossConfig:
         return FinetuneLossConfig(spacing=self.patch_spacing, w_scales=self.w_scales, backward=self.backward,
@@ -129,14 +128,6 @@ def make_scaler(device: torch.device | str, cfg: FinetuneConfig) -> torch.amp.Gr
     return grad_scaler(device, cfg.amp)
 
 
-def make_optimizer(model: torch.nn.Module, cfg: FinetuneConfig) -> torch.optim.Optimizer:
-    """ARFlow's Adam (weight decay on weights only) at the constant fine-tuning rate."""
-    weights = [p for n, p in model.named_parameters() if not n.endswith("bias")]
-    biases = [p for n, p in model.named_parameters() if n.endswith("bias")]
-    groups = [{"params": weights, "weight_decay": cfg.weight_decay}, {"params": biases, "weight_decay": 0.0}]
-    return torch.optim.Adam(groups, lr=cfg.lr, betas=(0.9, 0.999), eps=1e-7)
-
-
 @torch.no_grad()
 def evaluate_epe(model: FlowNetwork, pairs: Iterable[GTPair], device: str = "cpu") -> dict[str, Any]:
     """EPE of the forward flow on ground-truth pairs: ``{"pairs", "epe_all", "epe_noc", "epe_occ",
@@ -178,9 +169,10 @@ def prepare_batch(batch: dict[str, torch.Tensor], cfg: FinetuneConfig, gen: torc
 
 def train_step(model: FlowNetwork, optimizer: torch.optim.Optimizer, batch: dict[str, torch.Tensor],
                cfg: FinetuneConfig, device: torch.device | str = "cpu",
-               scaler: torch.amp.GradScaler | None = None) -> dict[str, float] | None:
-    """One update on a prepared batch (:func:`prepare_batch`) → its loss terms, or None when the loss was
-    not finite (no update). The network runs under :func:`autocast` with ``cfg.amp``, the loss in float32."""
+               scaler: torch.amp.GradScaler | None = None) -> dict[str, float]:
+    """One update on a prepared batch (:func:`prepare_batch`) → its loss terms; raises FloatingPointError
+    (no update) when the loss is not finite. The network runs under :func:`autocast` with ``cfg.amp``, the
+    loss in float32."""
     img1, img2 = batch["img1"].to(device), batch["img2"].to(device)
     with autocast(device, cfg.amp):
         flows_fw, flows_bw = model(batch["net1"].to(device), batch["net2"].to(device), with_backward=True)
@@ -191,7 +183,7 @@ def train_step(model: FlowNetwork, optimizer: torch.optim.Optimizer, batch: dict
                                  batch.get("keypoint_mask"), cfg)
     optimizer.zero_grad(set_to_none=True)
     if not torch.isfinite(loss):
-        return None
+        raise FloatingPointError(f"loss is {loss.item()}")
     if scaler is not None:
         scaler.scale(loss).backward()
         scaler.step(optimizer)
@@ -202,47 +194,6 @@ def train_step(model: FlowNetwork, optimizer: torch.optim.Optimizer, batch: dict
     return stats
 
 
-def train_epoch(model: FlowNetwork, dataset: FlowPairs, cfg: FinetuneConfig, optimizer: torch.optim.Optimizer,
-                epoch: int, device: str = "cpu", workers: int = 0, progress: bool = True,
-                scaler: torch.amp.GradScaler | None = None) -> dict[str, float]:
-    """One pass over ``dataset`` in the order and with the augmentation of ``epoch``; mean loss terms."""
-    gen = epoch_generator(cfg.seed, epoch)
-    order = torch.randperm(len(dataset), generator=gen).tolist()
-    loader = torch.utils.data.DataLoader(dataset, batch_size=cfg.batch_size, sampler=order,
-                                         collate_fn=collate, num_workers=workers)
-    model.train()
-    sums = dict.fromkeys(TRAIN_COLUMNS, 0.0)
-    steps = skipped = 0
-    bar = tqdm(loader, desc=f"flow_finetune[{cfg.loss}] {epoch + 1}/{cfg.epochs}", disable=not progress,
-               leave=False)
-    for batch in bar:
-        stats = train_step(model, optimizer, prepare_batch(batch, cfg, gen), cfg, device, scaler)
-        if stats is None:
-            skipped += 1
-            continue
-        steps += 1
-        for k in TRAIN_COLUMNS:
-            sums[k] += stats[k]
-        bar.set_postfix(loss=f"{stats['loss']:.4f}")
-    out = {k: v / max(steps, 1) for k, v in sums.items()}
-    out.update(steps=steps, skipped_steps=skipped)
-    return out
-
-
-def _load_resume(path: Path, fingerprint: Mapping[str, Any]) -> dict[str, Any] | None:
-    if not path.is_file():
-        return None
-    try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
-    except (RuntimeError, OSError, EOFError, ValueError) as exc:
-        warnings.warn(f"{path}: unreadable fine-tuning state ({exc}); starting afresh", stacklevel=3)
-        return None
-    if (not isinstance(state, dict) or state.get("format") != RESUME_FORMAT
-            or state.get("version") != RESUME_VERSION or state.get("fingerprint") != dict(fingerprint)):
-        return None
-    return state
-
-
 def finetune(model: FlowNetwork, dataset: FlowPairs, cfg: FinetuneConfig, eval_pairs: Iterable[GTPair] = (),
              resume_path: str | os.PathLike | None = None, fingerprint: Mapping[str, Any] | None = None,
              device: str = "cpu", workers: int = 0,
@@ -251,46 +202,43 @@ def finetune(model: FlowNetwork, dataset: FlowPairs, cfg: FinetuneConfig, eval_p
     """Fine-tune ``model`` in place; returns ``{"history", "epochs_run", "resumed_from", "seconds"}``.
 
     ``eval_pairs`` (kept in memory) are scored after every epoch; ``on_epoch(epoch, row, history)`` is
-    called after each epoch (1-based) once its state is saved. ``history`` rows have
-    :data:`HISTORY_COLUMNS` (EPE None without ground truth).
+    called after each epoch (1-based) once its state is saved, and first for each epoch a resumed run
+    already has. ``history`` rows have :data:`HISTORY_COLUMNS` (EPE None without ground truth).
     """
     eval_pairs = list(eval_pairs)
     model.to(device)
     optimizer = make_optimizer(model, cfg)
     scaler = make_scaler(device, cfg)
-    full_fp = {"config": asdict(cfg), "pairs": [p.pair_id for p in dataset.pairs], **dict(fingerprint or {})}
-    resume = Path(resume_path) if resume_path is not None else None
-    state = _load_resume(resume, full_fp) if resume is not None else None
-    start, history = 0, []
-    if state is not None:
-        model.load_state_dict(state["model"])
-        optimizer.load_state_dict(state["optimizer"])
-        if state["scaler"]:
-            scaler.load_state_dict(state["scaler"])
-        start, history = int(state["epoch"]), [dict(r) for r in state["history"]]
-    t0 = time.perf_counter()
-    for epoch in range(start, cfg.epochs):
-        t_epoch = time.perf_counter()
-        row: dict[str, Any] = {"epoch": epoch + 1}
-        row.update(train_epoch(model, dataset, cfg, optimizer, epoch, device, workers, progress, scaler))
-        if not all(math.isfinite(row[k]) for k in TRAIN_COLUMNS):
-            raise FloatingPointError(f"flow_finetune[{cfg.loss}]: non-finite epoch statistics {row}")
+    run = f"flow_finetune[{cfg.loss}]"
+    loop = EpochLoop(run, cfg.epochs, {"model": model, "optimizer": optimizer, "scaler": scaler}, resume_path,
+                     hash_settings({"config": asdict(cfg), "pairs": [p.pair_id for p in dataset.pairs],
+                                    **dict(fingerprint or {})}), progress=progress)
+    loop.restore()
+
+    def batches(epoch: int):
+        gen = epoch_generator(cfg.seed, epoch - 1)
+        order = torch.randperm(len(dataset), generator=gen).tolist()
+        model.train()
+        for batch in torch.utils.data.DataLoader(dataset, batch_size=cfg.batch_size, sampler=order,
+                                                 collate_fn=collate, num_workers=workers):
+            yield prepare_batch(batch, cfg, gen)
+
+    def step(batch: dict[str, torch.Tensor]) -> dict[str, float]:
+        stats = train_step(model, optimizer, batch, cfg, device, scaler)
+        return {k: stats[k] for k in TRAIN_COLUMNS}
+
+    def end_epoch(row: dict[str, Any]) -> dict[str, Any]:
         if row["steps"] and row["noc_fraction"] == 0:
-            warnings.warn(f"flow_finetune[{cfg.loss}] epoch {epoch + 1}: the {cfg.occlusion} check marked "
-                          "every pixel occluded, so only the smoothness term trained; the flow is degenerate "
-                          "(e.g. constant, forward = backward). Use a better pretrained model or set "
+            warnings.warn(f"{run} epoch {row['epoch']}: the {cfg.occlusion} check marked every "
+                          "pixel occluded, so only the smoothness term trained; the flow is degenerate (e.g. "
+                          "constant, forward = backward). Use a better pretrained model or set "
                           "flow_finetune.occlusion: range_map", stacklevel=2)
         epe = evaluate_epe(model, eval_pairs, device) if eval_pairs else {}
-        row.update({k: epe.get(k) for k in EPE_COLUMNS})
-        row["seconds"] = round(time.perf_counter() - t_epoch, 2)
-        history.append(row)
-        if resume is not None:
-            torch_save(resume, {"format": RESUME_FORMAT, "version": RESUME_VERSION, "fingerprint": full_fp,
-                                "epoch": epoch + 1, "history": history,
-                                "model": {k: v.detach().cpu() for k, v in model.state_dict().items()},
-                                "optimizer": optimizer.state_dict(), "scaler": scaler.state_dict()})
-        if on_epoch is not None:
-            on_epoch(epoch + 1, row, history)
+        return {k: epe.get(k) for k in EPE_COLUMNS}
+
+    t0 = time.perf_counter()
+    loop.run_epochs(batches, step, end_epoch=end_epoch, on_epoch=None if on_epoch is None
+                    else lambda row: on_epoch(row["epoch"], row, loop.history))
     model.eval()
-    return {"history": history, "epochs_run": max(cfg.epochs - start, 0),
-            "resumed_from": start, "seconds": round(time.perf_counter() - t0, 1)}
+    return {"history": loop.history, "epochs_run": max(cfg.epochs - loop.resumed_from, 0),
+            "resumed_from": loop.resumed_from, "seconds": round(time.perf_counter() - t0, 1)}

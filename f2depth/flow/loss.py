@@ -105,9 +105,11 @@ def smoothness(flow: torch.Tensor, img: torch.Tensor, alpha: float = 10.0, secon
 def range_map(flow: torch.Tensor) -> torch.Tensor:
     """How much of frame A lands on each pixel of frame B: ``flow (B,2,H,W)`` A → B → count ``(B,1,H,W)``
     on B's grid, by forward-splatting every pixel of A to ``p + flow(p)`` with bilinear weights
-    (neighbours outside the image get no weight)."""
+    (neighbours outside the image get no weight; a non-finite flow lands nowhere, so the loss it makes is
+    non-finite and the step is skipped, not an index error)."""
     b, _, h, w = flow.shape
     pos = base_grid(h, w, flow.dtype, flow.device) + flow
+    pos = torch.nan_to_num(pos, nan=-2.0, posinf=-2.0, neginf=-2.0)
     x, y = pos[:, 0].reshape(b, -1), pos[:, 1].reshape(b, -1)
     x0, y0 = torch.floor(x), torch.floor(y)
     count = flow.new_zeros(b, h * w)

@@ -60,3 +60,12 @@ def msra_init(model: nn.Module, generator: torch.Generator | None = None) -> nn.
                 if module.bias is not None:
                     module.bias.zero_()
     return model
+
+
+def make_optimizer(model: nn.Module, cfg: Any) -> torch.optim.Optimizer:
+    """ARFlow's Adam for pretraining and fine-tuning: betas (0.9, 0.999), eps 1e-7, constant ``cfg.lr``,
+    weight decay ``cfg.weight_decay`` on weights and none on biases (ARFlow's ``bias_decay`` 0)."""
+    weights = [p for n, p in model.named_parameters() if not n.endswith("bias")]
+    biases = [p for n, p in model.named_parameters() if n.endswith("bias")]
+    groups = [{"params": weights, "weight_decay": cfg.weight_decay}, {"params": biases, "weight_decay": 0.0}]
+    return torch.optim.Adam(groups, lr=cfg.lr, betas=(0.9, 0.999), eps=1e-7)

@@ -38,18 +38,18 @@ from f2depth.poses.tracks import TrackerConfig, track_corners, valid_region
 
 @dataclass(frozen=True)
 class PosesConfig:
+    """The ``poses`` section (ranges checked by f2depth.params.section)."""
+
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
     reconstruct: ReconstructConfig = field(default_factory=ReconstructConfig)
-    median_depth: float = 2.0  # the scale of every scene: median depth of its images (image_median_depth)
-    min_registered_share: float = 0.9  # a scene is sound with this share of its frames registered ...
-    min_scene_points: int = 10  # ... and this many points
-    min_shared_points: int = 10  # a pair is reliable when both frames see this many common points
-    workers: int = 1
-
-    def __post_init__(self) -> None:
-        if (not self.median_depth > 0 or not 0 <= self.min_registered_share <= 1 or self.min_scene_points < 0
-                or self.min_shared_points < 1 or self.workers < 0):
-            raise ValueError(f"invalid poses configuration {self}")
+    # the scale of every scene: median depth of its images (image_median_depth)
+    median_depth: float = field(default=2.0, metadata={"gt": 0})
+    # a scene is sound with this share of its frames registered ...
+    min_registered_share: float = field(default=0.9, metadata={"min": 0, "max": 1})
+    min_scene_points: int = field(default=10, metadata={"min": 0})  # ... and this many points
+    # a pair is reliable when both frames see this many common points
+    min_shared_points: int = field(default=10, metadata={"min": 1})
+    workers: int = field(default=1, metadata={"min": 0})
 
 
 @dataclass(frozen=True)

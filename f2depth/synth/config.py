@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+from f2depth import params as P
 from f2depth.params import ParamsError
 
 
@@ -43,48 +44,77 @@ class SynthConfig:
 
     @classmethod
     def from_params(cls, synth: dict[str, Any], source: str = "params.yaml") -> SynthConfig:
-        """Read the ``synth`` section; a missing or bad key raises :class:`ParamsError` naming it."""
+        """Read the ``synth`` section (:class:`SynthParams`); a missing or bad key raises
+        :class:`ParamsError` naming it."""
+        s = P.section({"synth": synth, "_file": source}, "synth", SynthParams)
+        return cls(seed=s.seed, workers=s.workers, supersample=s.supersample, nyu_raw_scenes=s.nyu_raw.scenes,
+                   nyu_raw_frames=s.nyu_raw.frames, labeled_images=s.nyu_labeled.images,
+                   labeled_test_fraction=s.nyu_labeled.test_fraction, sevenscenes_scenes=s.sevenscenes.scenes,
+                   sevenscenes_frames=s.sevenscenes.frames_per_sequence, campus_scenes=s.campus.scenes,
+                   campus_images=s.campus.images_per_scene, campus_hw=(s.campus.height, s.campus.width),
+                   campus_focal=s.campus.focal, animated_sequences=s.animated.sequences,
+                   animated_frames=s.animated.frames, animated_hw=(s.animated.height, s.animated.width),
+                   compress_gt=s.compress_gt, flow_gt=s.flow_gt)
 
-        def get(dotted: str, kind: type, minimum: float | None = None):
-            node: Any = synth
-            for part in dotted.split("."):
-                if not isinstance(node, dict) or part not in node:
-                    raise ParamsError(f"{source}: missing parameter 'synth.{dotted}'")
-                node = node[part]
-            try:
-                value = kind(node)
-            except (TypeError, ValueError):
-                raise ParamsError(f"{source}: 'synth.{dotted}' = {node!r} is not a {kind.__name__}") from None
-            if minimum is not None and value < minimum:
-                raise ParamsError(f"{source}: 'synth.{dotted}' = {value} must be >= {minimum}")
-            return value
 
-        fraction = get("nyu_labeled.test_fraction", float, 0.0)
-        if fraction >= 1.0:
-            raise ParamsError(f"{source}: 'synth.nyu_labeled.test_fraction' must be < 1 (some train images)")
-        scenes7 = get("sevenscenes.scenes", int, 1)
-        if scenes7 > 7:
-            raise ParamsError(f"{source}: 'synth.sevenscenes.scenes' = {scenes7}: 7-Scenes has 7 scenes")
-        return cls(
-            seed=get("seed", int),
-            workers=get("workers", int, 0),
-            supersample=get("supersample", int, 1),
-            nyu_raw_scenes=get("nyu_raw.scenes", int, 1),
-            nyu_raw_frames=get("nyu_raw.frames", int, 2),
-            labeled_images=get("nyu_labeled.images", int, 2),
-            labeled_test_fraction=fraction,
-            sevenscenes_scenes=scenes7,
-            sevenscenes_frames=get("sevenscenes.frames_per_sequence", int, 2),
-            campus_scenes=get("campus.scenes", int, 1),
-            campus_images=get("campus.images_per_scene", int, 1),
-            campus_hw=(get("campus.height", int, 32), get("campus.width", int, 32)),
-            campus_focal=get("campus.focal", float, 1.0),
-            animated_sequences=get("animated.sequences", int, 1),
-            animated_frames=get("animated.frames", int, 2),
-            animated_hw=(get("animated.height", int, 32), get("animated.width", int, 32)),
-            compress_gt=get("compress_gt", bool),
-            flow_gt=get("flow_gt", bool),
-        )
+def _at_least(low: float) -> Any:
+    return field(metadata={"min": low})
+
+
+@dataclass(frozen=True)
+class NyuRawParams:
+    scenes: int = _at_least(1)
+    frames: int = _at_least(2)
+
+
+@dataclass(frozen=True)
+class NyuLabeledParams:
+    images: int = _at_least(2)
+    test_fraction: float = _at_least(0)
+
+    def __post_init__(self) -> None:
+        if self.test_fraction >= 1:
+            raise ValueError(f"test_fraction must be < 1 (some train images), got {self.test_fraction}")
+
+
+@dataclass(frozen=True)
+class SevenScenesParams:
+    scenes: int = field(metadata={"min": 1, "max": 7})  # 7-Scenes has 7 scenes
+    frames_per_sequence: int = _at_least(2)
+
+
+@dataclass(frozen=True)
+class CampusParams:
+    scenes: int = _at_least(1)
+    images_per_scene: int = _at_least(1)
+    height: int = _at_least(32)
+    width: int = _at_least(32)
+    focal: float = _at_least(1)
+
+
+@dataclass(frozen=True)
+class AnimatedParams:
+    sequences: int = _at_least(1)
+    frames: int = _at_least(2)
+    height: int = _at_least(32)
+    width: int = _at_least(32)
+
+
+@dataclass(frozen=True)
+class SynthParams:
+    """The ``synth`` section as params.yaml nests it (read by f2depth.params.section)."""
+
+    root: str
+    seed: int
+    workers: int = _at_least(0)
+    supersample: int = _at_least(1)
+    compress_gt: bool
+    flow_gt: bool
+    nyu_raw: NyuRawParams
+    nyu_labeled: NyuLabeledParams
+    sevenscenes: SevenScenesParams
+    campus: CampusParams
+    animated: AnimatedParams
 
 
 @dataclass(frozen=True)
@@ -111,10 +141,10 @@ class OutputPaths:
             "synth_gt": "synth_gt",
         }
         out = {}
-        for field, key in keys.items():
+        for name, key in keys.items():
             if not isinstance(data, dict) or not data.get(key):
                 raise ParamsError(f"{source}: missing parameter 'data.{key}'")
-            out[field] = Path(data[key])
+            out[name] = Path(data[key])
         return cls(**out)
 
     @classmethod

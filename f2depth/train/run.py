@@ -23,14 +23,14 @@ from f2depth import tracking
 from f2depth.data.errors import DataError
 from f2depth.data.prepared import PreparedSet
 from f2depth.depth import DepthModel, DepthModelConfig, save_checkpoint
+from f2depth.epochs import clear_state, fingerprint, write_history
 from f2depth.io import atomic_dir, write_json
 from f2depth.poses.store import PosePriors
 from f2depth.superpixels import scaled_min_area
-from f2depth.train import checkpoint as ckpt
 from f2depth.train.data import DataConfig, TupleDataset
 from f2depth.train.diagnostics import DIAGNOSTIC_KEYS, TrainTruth, constant_depth_metrics, diagnose
 from f2depth.train.distributed import DistContext, barrier
-from f2depth.train.loop import FitResult, LoopConfig, fit, seed_everything, write_history
+from f2depth.train.loop import HISTORY_COLUMNS, FitResult, LoopConfig, fit, seed_everything
 from f2depth.train.schedule import LRSchedule
 from f2depth.train.settings import TrainSettings
 from f2depth.train.step import StepConfig
@@ -48,15 +48,15 @@ def run_fingerprint(s: TrainSettings, seed: int) -> str:
     files = {"tuples": Path(s.prepared) / "tuples.csv", "camera": Path(s.prepared) / "camera.json",
              "keypoints": s.keypoints_file, "flow_model": s.flow_model, "imagenet": s.imagenet_weights,
              "pose_priors": Path(s.poses) / "priors.json" if s.poses else None}
-    return ckpt.fingerprint(settings, files)
+    return fingerprint(settings, files)
 
 
 def _summary(result: FitResult) -> dict[str, Any]:
     hist = result.history
     first = next((r for r in hist if r["epoch"] == 0), {})
     last = hist[-1] if hist else {}
-    losses = {k: v for k, v in last.items() if k not in ("epoch", "lr", "seconds", "val_seconds")
-              and not k.startswith("val_") and k not in DIAGNOSTIC_KEYS}
+    other = ("epoch", "lr", "seconds", "val_seconds", "steps", "skipped_steps", *DIAGNOSTIC_KEYS)
+    losses = {k: v for k, v in last.items() if k not in other and not k.startswith("val_")}
     return {
         "val_untrained": {"abs_rel": first.get("val_abs_rel"), "a1": first.get("val_a1")},
         "val_trained": {"abs_rel": last.get("val_abs_rel"), "a1": last.get("val_a1")},
@@ -169,8 +169,8 @@ def train_variant(
     }  # fmt: skip
     if ctx.is_main:
         for seed in s.seeds:
-            (Path(s.checkpoint_dir) / s.variant / f"seed{seed}.pt").unlink(missing_ok=True)
-        write_history(history_file, main_history)
+            clear_state(Path(s.checkpoint_dir) / s.variant / f"seed{seed}.pt")
+        write_history(history_file, main_history, HISTORY_COLUMNS)
         write_json(metrics_file, metrics)
         if validator is not None:
             validator.close()

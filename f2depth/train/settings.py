@@ -11,7 +11,7 @@ parameter file in use (``--params``), so a copied parameter file behaves like th
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -65,12 +65,49 @@ class TrainSettings:
         return d
 
 
+@dataclass(frozen=True)
+class TrainDepthParams:
+    """The ``train_depth`` section (read by f2depth.params.section, which checks the ranges)."""
+
+    epochs: int = field(metadata={"min": 1})
+    batch_size: int = field(metadata={"min": 1})
+    lr: tuple[float, ...]
+    lr_epochs: tuple[int, ...]
+    num_points: int = field(metadata={"min": 1})
+    imagenet_weights: str | None
+    amp: bool
+    init_depth: Any  # null or metres inside DepthCNN's range (checked below)
+    pose_prior: str
+    augment: bool
+    seeds: tuple[int, ...]
+    workers: int = field(metadata={"min": 0})
+    val_max_images: int | None = field(metadata={"min": 1})
+    diagnostic_tuples: int = field(metadata={"min": 0})
+    sync_bn: bool
+    checkpoint_dir: str
+
+    def __post_init__(self) -> None:
+        if self.pose_prior not in POSE_PRIORS:
+            raise ValueError(f"pose_prior must be one of {', '.join(POSE_PRIORS)}, got {self.pose_prior!r}")
+        if not self.seeds or len(set(self.seeds)) != len(self.seeds):
+            raise ValueError(f"seeds must be a non-empty list of distinct integers, got {list(self.seeds)}")
+        if self.init_depth is not None:
+            lo, hi = DepthModelConfig.min_depth, DepthModelConfig.max_depth
+            try:
+                if isinstance(self.init_depth, bool):
+                    raise TypeError("a bool is not a depth")
+                sigmoid_input_for_depth(self.init_depth, lo, hi)
+            except (TypeError, ValueError):
+                raise ValueError(f"init_depth must be null or a depth in metres strictly between {lo} and "
+                                 f"{hi} (DepthCNN's range), got {self.init_depth!r}") from None
+
+
 def _lambda_from(params: dict[str, Any], params_path: str, source: str, key: str, variant: str) -> float:
     if not isinstance(source, str) or not source:
         raise P.ParamsError(f"{params_path}: variants.{variant}: give the file {key} is read from "
                             f"(params.yaml or configs/ablation_off.yaml)")
     if Path(source).name == PARAMS_NAME and Path(source).parent == Path("."):
-        return float(P.get(params, key))
+        return P.value(params, key, float, min=0)
     path = Path(source)
     if not path.is_file():
         raise P.ParamsError(f"{params_path}: variants.{variant} reads {key} from {path}, "
@@ -78,7 +115,7 @@ def _lambda_from(params: dict[str, Any], params_path: str, source: str, key: str
     data = yaml.safe_load(path.read_text()) or {}
     if not isinstance(data, dict) or key not in data:
         raise P.ParamsError(f"{path}: no '{key}' (variants.{variant} reads it from this file)")
-    return float(data[key])
+    return P.value({**data, "_file": str(path)}, key, float, min=0)
 
 
 def settings_from_params(params: dict[str, Any], variant: str) -> TrainSettings:
@@ -95,8 +132,8 @@ def settings_from_params(params: dict[str, Any], variant: str) -> TrainSettings:
                             f"{flow_model!r}; they must name the same file so DVC tracks the model used")
     rigid_from, feature_from = v.get("rigid_from"), v.get("feature_from")
     weights = LossWeights(
-        lambda1=float(P.get(params, "lambda1")),
-        lambda2=float(P.get(params, "lambda2")),
+        lambda1=P.value(params, "lambda1", float, min=0),
+        lambda2=P.value(params, "lambda2", float, min=0),
         lambda3=_lambda_from(params, path, feature_from, "lambda3", variant),
         lambda_rigid=_lambda_from(params, path, rigid_from, "lambda_rigid", variant),
     )
@@ -104,32 +141,10 @@ def settings_from_params(params: dict[str, Any], variant: str) -> TrainSettings:
         raise P.ParamsError(f"{path}: variants.{variant} has no flow_model but lambda_rigid="
                             f"{weights.lambda_rigid}, lambda3={weights.lambda3}; read both from "
                             "configs/ablation_off.yaml or give a flow model")
+    td = P.section(params, "train_depth", TrainDepthParams)
     # Before any work: the paper's pretrained starts (allow_random_init: false) must exist.
     starts = P.pretrained_starts(params, ("train_depth.imagenet_weights",)
                                  + (("flow_pretrain.checkpoint",) if flow_model is not None else ()))
-    td = P.get(params, "train_depth")
-    amp = P.get(params, "train_depth.amp")
-    if not isinstance(amp, bool):
-        raise P.ParamsError(f"{path}: train_depth.amp must be true or false, got {amp!r}")
-    pose_prior = td.get("pose_prior", "none")
-    if pose_prior not in POSE_PRIORS:
-        raise P.ParamsError(f"{path}: train_depth.pose_prior must be one of {', '.join(POSE_PRIORS)}, "
-                            f"got {pose_prior!r}")
-    seeds = td.get("seeds", [0])
-    seeds = tuple(int(s) for s in (seeds if isinstance(seeds, list) else [seeds]))
-    if not seeds or len(set(seeds)) != len(seeds):
-        raise P.ParamsError(f"{path}: train_depth.seeds must be a non-empty list of distinct integers")
-    val_max = td.get("val_max_images", 20)
-    init_depth = td.get("init_depth")
-    if init_depth is not None:
-        try:
-            if isinstance(init_depth, bool):
-                raise TypeError("a bool is not a depth")
-            sigmoid_input_for_depth(init_depth, DepthModelConfig.min_depth, DepthModelConfig.max_depth)
-        except (TypeError, ValueError) as exc:
-            raise P.ParamsError(f"{path}: train_depth.init_depth must be null or a depth in metres strictly "
-                                f"between {DepthModelConfig.min_depth} and {DepthModelConfig.max_depth} "
-                                f"(DepthCNN's range), got {init_depth!r}") from exc
     return TrainSettings(
         variant=variant,
         prepared=str(P.get(params, "data.prepared")),
@@ -139,24 +154,13 @@ def settings_from_params(params: dict[str, Any], variant: str) -> TrainSettings:
         flow_model=str(flow_model) if flow_model is not None else None,
         weights=weights,
         lambda_sources={"lambda_rigid": str(rigid_from), "lambda3": str(feature_from)},
-        epochs=int(P.get(params, "train_depth.epochs")),
-        batch_size=int(P.get(params, "train_depth.batch_size")),
-        lr=tuple(float(x) for x in P.get(params, "train_depth.lr")),
-        lr_epochs=tuple(int(x) for x in P.get(params, "train_depth.lr_epochs")),
-        num_points=int(P.get(params, "train_depth.num_points")),
-        augment=bool(P.get(params, "train_depth.augment")),
-        seeds=seeds,
-        workers=int(td.get("workers", 0)),
+        epochs=td.epochs, batch_size=td.batch_size, lr=td.lr, lr_epochs=td.lr_epochs,
+        num_points=td.num_points, augment=td.augment, seeds=td.seeds, workers=td.workers,
         imagenet_weights=starts["train_depth.imagenet_weights"],
-        init_depth=None if init_depth is None else float(init_depth),
-        val_gt=str(P.get(params, "evaluate.nyu_gt", "depths")),
-        val_crop=str(P.get(params, "evaluate.nyu_crop", "eigen")),
-        val_max_images=None if val_max is None else int(val_max),
-        sync_bn=bool(td.get("sync_bn", True)),
-        amp=amp,
-        pose_prior=pose_prior,
-        poses=str(P.get(params, "data.poses")) if pose_prior == "geometric" else None,
-        device=str(params.get("device", "auto")),
-        checkpoint_dir=str(td.get("checkpoint_dir", "tmp/train_depth")),
-        diagnostic_tuples=int(td.get("diagnostic_tuples", 64)),
+        init_depth=None if td.init_depth is None else float(td.init_depth),
+        val_gt=P.value(params, "evaluate.nyu_gt", str), val_crop=P.value(params, "evaluate.nyu_crop", str),
+        val_max_images=td.val_max_images, sync_bn=td.sync_bn, amp=td.amp, pose_prior=td.pose_prior,
+        poses=str(P.get(params, "data.poses")) if td.pose_prior == "geometric" else None,
+        device=P.value(params, "device", P.Device), checkpoint_dir=td.checkpoint_dir,
+        diagnostic_tuples=td.diagnostic_tuples,
     )

@@ -1,0 +1,244 @@
+"""The one epoch skeleton of every trainer — flow pretraining, flow fine-tuning, depth training: the epoch
+loop, resume, the history and the non-finite policy. A trainer supplies only what differs: the batches of
+an epoch, one step, its optimiser, and the per-epoch hooks.
+
+**Epochs** are numbered from 1 (a history row ``{"epoch": 0, ...}`` may hold the untrained network's
+validation). Each row holds the mean of every step statistic over the steps taken, ``steps``,
+``skipped_steps``, ``seconds`` (training time of the epoch) and what the ``end_epoch`` hook adds.
+
+**Non-finite policy** (all three trainers). A step whose loss is NaN or infinite raises
+``FloatingPointError`` before any update (depth training: ``NonFiniteLossError`` naming the term; under DDP
+the ranks agree first, so all of them skip the same step). The skeleton skips that step — no update — and
+counts it in the row's ``skipped_steps``. An epoch in which every step was skipped, or whose means are not
+finite, stops the run with :class:`NonFiniteEpochError`: one line naming the run, the epoch and the last
+cause. Its state is not saved, so the resume file keeps the last good epoch.
+
+**Resume.** After every epoch the main process writes, atomically (``f2depth.io.torch_save``), the file
+``{"format": "f2depth.train_state", "version", "run", "fingerprint", "epoch", "history", "parts"}`` —
+``parts`` the ``state_dict()`` of each named part (model, optimizer, grad scaler, RNG state), plain tensors
+and Python values, so it loads with ``torch.load(weights_only=True)``. ``fingerprint`` (:func:`fingerprint`:
+a hash of the settings and input files) identifies the run: a state whose fingerprint, format or version
+differs is never resumed, so changed parameters or data start afresh. A finished run's caller deletes the
+file (:func:`clear_state`) once its own outputs are written, never before.
+
+**Hooks.** ``end_epoch(row) → dict`` (main process, before the state is saved) adds columns to the
+epoch's row: validation, the learning rate. ``on_epoch(row)`` (main process, after the save) mirrors each
+row, e.g. to MLflow; on resume it first replays every row already in the history, so a new logger gets
+the whole curve.
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import io
+import json
+import logging
+import math
+import os
+import pickle
+import random
+import time
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from f2depth.io import torch_save, write_text
+
+FORMAT = "f2depth.train_state"
+VERSION = 2
+log = logging.getLogger(__name__)
+
+
+class NonFiniteEpochError(FloatingPointError):
+    """Every step of an epoch had a non-finite loss (or its means are not finite): the run stops."""
+
+
+class RNGState:
+    """The torch / CUDA / numpy / Python generators as a resumable part."""
+
+    def state_dict(self) -> dict[str, Any]:
+        np_state = np.random.get_state()  # noqa: NPY002 (the legacy global generator is what we save)
+        return {
+            "torch": torch.get_rng_state(),
+            "cuda": torch.cuda.get_rng_state_all() if torch.cuda.is_available() else [],
+            "numpy": {"name": np_state[0], "key": torch.from_numpy(np_state[1].astype(np.int64)),
+                      "pos": int(np_state[2]), "has_gauss": int(np_state[3]), "cached": float(np_state[4])},
+            "python": random.getstate(),
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        torch.set_rng_state(state["torch"])
+        if state.get("cuda") and torch.cuda.is_available():
+            torch.cuda.set_rng_state_all(state["cuda"])
+        n = state["numpy"]
+        np.random.set_state((n["name"], n["key"].numpy().astype(np.uint32), n["pos"], n["has_gauss"],  # noqa: NPY002
+                             n["cached"]))
+        version, internal, gauss = state["python"]
+        random.setstate((version, tuple(internal), gauss))
+
+
+def fingerprint(settings: Mapping[str, Any],
+                files: Mapping[str, str | os.PathLike | None] | None = None) -> str:
+    """sha256 of the JSON of ``settings`` plus the sha256 of each named file (None = no file)."""
+    digests = {k: file_digest(v) if v else None for k, v in (files or {}).items()}
+    digest = {"settings": dict(settings), "files": digests}
+    return hashlib.sha256(json.dumps(digest, sort_keys=True, default=str).encode()).hexdigest()
+
+
+def file_digest(path: str | os.PathLike) -> str:
+    """sha256 of a file's bytes, or of a folder's (relative path, bytes) pairs in sorted order."""
+    p = Path(path)
+    h = hashlib.sha256()
+    files = [p] if p.is_file() else sorted(q for q in p.rglob("*") if q.is_file())
+    if not files:
+        raise FileNotFoundError(f"{p}: nothing to fingerprint (missing input)")
+    for f in files:
+        h.update(str(f.relative_to(p) if f != p else f.name).encode())
+        with f.open("rb") as fh:
+            for chunk in iter(lambda: fh.read(1 << 20), b""):
+                h.update(chunk)
+    return h.hexdigest()
+
+
+def save_state(path: str | os.PathLike, *, run: str, fingerprint: str, epoch: int,
+               history: list[dict[str, Any]], parts: Mapping[str, Any]) -> None:
+    """Write the state after ``epoch`` finished epochs (atomically: a crash leaves the previous file)."""
+    states = {name: {k: v.detach().cpu() for k, v in p.state_dict().items()}
+              if isinstance(p, torch.nn.Module) else p.state_dict() for name, p in parts.items()}
+    torch_save(path, {"format": FORMAT, "version": VERSION, "run": run, "fingerprint": fingerprint,
+                      "epoch": int(epoch), "history": [dict(r) for r in history], "parts": states})
+
+
+def load_state(path: str | os.PathLike, expected_fingerprint: str) -> tuple[dict[str, Any] | None, str]:
+    """(state, "") when ``path`` holds a resumable state of this run, else (None, reason)."""
+    p = Path(path)
+    if not p.is_file():
+        return None, f"no training state at {p}"
+    try:
+        state = torch.load(p, map_location="cpu", weights_only=True)
+    except (RuntimeError, OSError, EOFError, ValueError, pickle.UnpicklingError) as exc:
+        return None, f"{p} is unreadable ({exc}); starting afresh"
+    if not isinstance(state, dict) or state.get("format") != FORMAT or state.get("version") != VERSION:
+        return None, f"{p} is not a {FORMAT} v{VERSION} file; starting afresh"
+    if state.get("fingerprint") != expected_fingerprint:
+        return None, f"{p} belongs to a run with other settings or inputs; starting afresh"
+    return state, ""
+
+
+def clear_state(path: str | os.PathLike) -> None:
+    """Delete a finished run's state file, and its folder when that is left empty."""
+    p = Path(path)
+    p.unlink(missing_ok=True)
+    if p.parent.is_dir() and not any(p.parent.iterdir()):
+        p.parent.rmdir()
+
+
+def history_csv(rows: Iterable[Mapping[str, Any]], columns: Iterable[str]) -> str:
+    """The rows as CSV text with ``columns`` (floats with 6 significant digits, blanks for gaps)."""
+    columns = list(columns)
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(columns)
+    for row in rows:
+        w.writerow([_cell(row.get(c)) for c in columns])
+    return buf.getvalue()
+
+
+def _cell(v: Any) -> str:
+    return "" if v is None else f"{v:.6g}" if isinstance(v, float) else str(v)
+
+
+def write_history(path: str | os.PathLike, rows: Iterable[Mapping[str, Any]], columns: Iterable[str]) -> None:
+    write_text(path, history_csv(rows, columns))
+
+
+@dataclass
+class EpochLoop:
+    """The epochs of one run (module docstring). ``parts``: what the resume file holds, by name (objects
+    with ``state_dict()`` / ``load_state_dict()``); ``main``: this process saves, measures and logs (rank 0
+    under DDP)."""
+
+    run: str
+    epochs: int
+    parts: Mapping[str, Any]
+    state_file: str | os.PathLike | None = None
+    fingerprint: str = ""
+    main: bool = True
+    progress: bool = True
+    history: list[dict[str, Any]] = field(default_factory=list)
+    resumed_from: int = 0  # finished epochs taken from the state file (0 = fresh start)
+    note: str = ""
+
+    def restore(self, enabled: bool = True) -> int:
+        """Load the parts, epoch and history of a matching state file → the finished epochs (0 = fresh)."""
+        if self.state_file is None or not enabled:
+            self.note = "resume disabled"
+            return 0
+        state, self.note = load_state(self.state_file, self.fingerprint)
+        if state is None:
+            if Path(self.state_file).exists():
+                log.warning("%s: %s", self.run, self.note)
+            return 0
+        for name, part in self.parts.items():
+            if state["parts"][name]:  # a disabled GradScaler saves {}
+                part.load_state_dict(state["parts"][name])
+        self.history = [dict(r) for r in state["history"]]
+        self.resumed_from = int(state["epoch"])
+        return self.resumed_from
+
+    def run_epochs(self, batches: Callable[[int], Iterable[Any]], step: Callable[[Any], Mapping[str, float]],
+                   *,
+                   end_epoch: Callable[[dict[str, Any]], Mapping[str, Any]] | None = None,
+                   on_epoch: Callable[[dict[str, Any]], None] | None = None,
+                   reduce: Callable[[dict[str, float]], dict[str, float]] | None = None,
+                   barrier: Callable[[], None] | None = None) -> list[dict[str, Any]]:
+        """Train the remaining epochs: ``batches(epoch)`` in order, ``step(batch)`` → statistics (raises
+        ``FloatingPointError`` for a non-finite loss); ``reduce`` averages the means over DDP ranks and
+        ``barrier`` waits for the main process's save. Returns the history."""
+        if self.main and on_epoch is not None:
+            for row in self.history:
+                on_epoch(row)
+        for epoch in range(self.resumed_from + 1, self.epochs + 1):
+            t0 = time.perf_counter()
+            sums: dict[str, float] = {}
+            steps = skipped = 0
+            last: FloatingPointError | None = None
+            bar = tqdm(batches(epoch), desc=f"{self.run} {epoch}/{self.epochs}", leave=False,
+                       disable=not (self.progress and self.main))
+            for batch in bar:
+                try:
+                    stats = step(batch)
+                except FloatingPointError as exc:
+                    skipped, last = skipped + 1, exc
+                    continue
+                steps += 1
+                for k, v in stats.items():
+                    sums[k] = sums.get(k, 0.0) + v
+                bar.set_postfix(skipped=skipped, **{k: f"{v:.4f}" for k, v in list(stats.items())[:1]})
+            if skipped and not steps:
+                raise NonFiniteEpochError(f"{self.run}: all {skipped} steps of epoch {epoch} had a "
+                                          f"non-finite loss (last: {last})") from last
+            means = {k: v / steps for k, v in sums.items()}
+            means = reduce(means) if reduce is not None else means
+            bad = [k for k, v in means.items() if not math.isfinite(v)]
+            if bad:
+                raise NonFiniteEpochError(f"{self.run}: epoch {epoch} has non-finite means of {bad}")
+            row: dict[str, Any] = {"epoch": epoch, **means, "steps": steps, "skipped_steps": skipped,
+                                   "seconds": time.perf_counter() - t0}
+            if self.main and end_epoch is not None:
+                row.update(end_epoch(row))
+            self.history.append(row)
+            if self.main and self.state_file is not None:
+                save_state(self.state_file, run=self.run, fingerprint=self.fingerprint, epoch=epoch,
+                           history=self.history, parts=self.parts)
+            if barrier is not None:
+                barrier()
+            if self.main and on_epoch is not None:
+                on_epoch(row)
+        return self.history
