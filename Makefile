@@ -28,6 +28,8 @@ install: $(STAMP)
 
 repro: $(STAMP)
 	$(BIN)/dvc repro
+	@# dvc repro leaves the new outputs as copies beside the cache: link them to it (one copy on disk)
+	$(BIN)/dvc checkout --relink --quiet
 
 test: $(STAMP)
 	$(BIN)/ruff check .
