@@ -19,6 +19,16 @@ from f2depth.train.settings import settings_from_params
 STAGE = Path(__file__).resolve().parents[1] / "stages" / "train_depth.py"
 
 
+def load_stage(monkeypatch):
+    """The train_depth stage script as a module, without MLflow, on one thread."""
+    monkeypatch.setenv("F2DEPTH_MLFLOW", "0")
+    torch.set_num_threads(1)
+    spec = importlib.util.spec_from_file_location("train_depth_stage", STAGE)
+    stage = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(stage)
+    return stage
+
+
 @pytest.fixture
 def setup(tmp_path):
     prep = train_fakes.write_prepared(tmp_path / "prepared", hw=(64, 64), scenes=1, frames=6)
@@ -58,11 +68,7 @@ def test_variant_errors(setup):
 
 def test_stage_trains_every_seed_and_writes_outputs(setup, monkeypatch):
     root, path = setup
-    monkeypatch.setenv("F2DEPTH_MLFLOW", "0")
-    torch.set_num_threads(1)
-    spec = importlib.util.spec_from_file_location("train_depth_stage", STAGE)
-    stage = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(stage)
+    stage = load_stage(monkeypatch)
     stage.main(["train_depth.py", "--variant", "full", "--params", str(path),
                 "--models", str(root / "models"), "--metrics", str(root / "metrics")])
     out = root / "models" / "depth_full"
@@ -85,11 +91,7 @@ def test_stage_trains_every_seed_and_writes_outputs(setup, monkeypatch):
 
 def test_a_failed_run_keeps_the_previous_models_and_a_new_one_replaces_them(setup, monkeypatch):
     root, path = setup
-    monkeypatch.setenv("F2DEPTH_MLFLOW", "0")
-    torch.set_num_threads(1)
-    spec = importlib.util.spec_from_file_location("train_depth_stage", STAGE)
-    stage = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(stage)
+    stage = load_stage(monkeypatch)
     argv = ["train_depth.py", "--variant", "baseline", "--params", str(path),
             "--models", str(root / "models"), "--metrics", str(root / "metrics")]
     stage.main(argv)
@@ -137,11 +139,7 @@ def test_stage_starts_the_depth_at_init_depth(tmp_path, monkeypatch):
     ≈ 0.2 m of P²Net's start."""
     prep = train_fakes.write_prepared(tmp_path / "prepared", hw=(64, 64), scenes=1, frames=4)
     mat, splits = train_fakes.write_nyu_test(tmp_path, n=2)
-    monkeypatch.setenv("F2DEPTH_MLFLOW", "0")
-    torch.set_num_threads(1)
-    spec = importlib.util.spec_from_file_location("train_depth_stage", STAGE)
-    stage = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(stage)
+    stage = load_stage(monkeypatch)
     img = torch.rand(1, 3, 64, 64, generator=torch.Generator().manual_seed(0))
     medians = {}
     for init in (None, 2.0):
