@@ -22,13 +22,15 @@ import numpy as np
 import torch
 from torch.utils.data import default_collate
 
+from f2depth import params as P
 from f2depth.depth import DepthModel, DepthModelConfig
 from f2depth.flow import PWCLite
 from f2depth.io import imwrite, write_json, write_text
 from f2depth.keypoints import save_keypoints
-from f2depth.losses import LossWeights, total_loss
+from f2depth.losses import total_loss
 from f2depth.superpixels import scaled_min_area
 from f2depth.train.data import DataConfig, TupleDataset
+from f2depth.train.settings import loss_weights
 from f2depth.train.step import (
     StepConfig,
     batch_to,
@@ -39,6 +41,7 @@ from f2depth.train.step import (
 from f2depth.train.teacher import FlowTeacher
 
 PARTS = ("data", "flow", "forward", "losses", "backward")
+PARAMS = Path(__file__).resolve().parents[1] / "params.yaml"  # the loss weights of L_depth
 
 
 def write_set(root: Path, hw: tuple[int, int], tuples: int = 8, points: int = 2000, seed: int = 0,
@@ -104,7 +107,7 @@ def bench(hw: tuple[int, int], threads: int, repeats: int) -> dict[str, float]:
         model = DepthModel(DepthModelConfig(*hw)).train()
         teacher = FlowTeacher(PWCLite())
         opt = torch.optim.Adam(model.parameters(), lr=1e-4)
-        cfg = StepConfig(LossWeights(), min_area=scaled_min_area(*hw))
+        cfg = StepConfig(loss_weights(P.load(PARAMS)), min_area=scaled_min_area(*hw))
         runs = [time_step(ds, model, teacher, opt, cfg, k) for k in range(repeats + 1)][1:]
     out = {p: statistics.median(r[p] for r in runs) for p in PARTS}
     out["total"] = statistics.median(sum(r[p] for p in PARTS) for r in runs)

@@ -60,11 +60,10 @@ from f2depth.flow.correlation import correlation, correlation_reference  # noqa:
 from f2depth.flow.finetune_data import FlowPairs, collate  # noqa: E402
 from f2depth.io import write_json, write_text  # noqa: E402
 from f2depth.keypoints.store import KeypointFile  # noqa: E402
-from f2depth.losses import LossWeights  # noqa: E402
 from f2depth.precision import autocast, grad_scaler  # noqa: E402
 from f2depth.superpixels import scaled_min_area  # noqa: E402
 from f2depth.train.data import DataConfig, TupleDataset  # noqa: E402
-from f2depth.train.settings import settings_from_params  # noqa: E402
+from f2depth.train.settings import loss_weights, settings_from_params  # noqa: E402
 from f2depth.train.step import (  # noqa: E402
     StepConfig,
     batch_to,
@@ -204,7 +203,7 @@ def check_flow_steps(checks: Checks, ds: FlowPairs, device: torch.device, batch_
                                     batch["img1"].to(device), batch["img2"].to(device),
                                     batch["keypoints"].to(device), batch["keypoint_mask"].to(device), cfg)
             stats = ft.train_step(model, ft.make_optimizer(model, cfg), batch, cfg, device,
-                                  ft.make_scaler(device, cfg))
+                                  grad_scaler(device, cfg.amp))
             losses[amp] = float(loss)
             ok = stats is not None and finite(stats)
             checks.add(f"flow step {loss_name} {'amp' if amp else 'fp32'}", ok,
@@ -263,7 +262,8 @@ def ddp_worker(args: argparse.Namespace) -> None:
         def on_epoch(row):
             captured.update(row)
 
-        fit(model, ds, FlowTeacher(PWCLite(), ctx.device), StepConfig(LossWeights(), scaled_min_area(*hw)),
+        weights = loss_weights(P.load(args.params))  # full's: every term on
+        fit(model, ds, FlowTeacher(PWCLite(), ctx.device), StepConfig(weights, scaled_min_area(*hw)),
             LoopConfig(1, args.depth_batch, LRSchedule.scaled((1e-4,), (1,), 1), progress=False),
             ctx=ctx, on_epoch=on_epoch)
     total = captured.get("total", math.nan)
@@ -288,7 +288,7 @@ def measure_depth(ds: TupleDataset, device: torch.device, args: argparse.Namespa
             model = model.to(memory_format=torch.channels_last)
         net = torch.compile(model) if args.compile else model
         opt = torch.optim.Adam(model.parameters(), lr=1e-4)
-        cfg = StepConfig(LossWeights(), scaled_min_area(h, w), amp=amp)
+        cfg = StepConfig(args.weights, scaled_min_area(h, w), amp=amp)
         scaler = grad_scaler(device, amp)
         reset_peak(device)
         step = timed(partial(train_step, net, opt, batch, teacher, cfg, scaler), device, args.repeats,
@@ -335,7 +335,7 @@ def measure_flow(ds: FlowPairs, device: torch.device, args: argparse.Namespace) 
                                 backward=True, occlusion="forward_backward", amp=amp)
         torch.manual_seed(0)
         model = PWCLite().to(device).train()
-        opt, scaler = ft.make_optimizer(model, cfg), ft.make_scaler(device, cfg)
+        opt, scaler = ft.make_optimizer(model, cfg), grad_scaler(device, cfg.amp)
         batch = flow_batch(ds, args.flow_batch, cfg)
         reset_peak(device)
         step = timed(partial(ft.train_step, model, opt, batch, cfg, device, scaler), device, args.repeats,
@@ -440,8 +440,9 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     device = torch.device(P.resolve_device(args.device))
     args.out = args.out.resolve()
-    os.chdir(args.params.resolve().parent)  # relative paths in params (configs/ablation_off.yaml) start here
+    os.chdir(args.params.resolve().parent)  # relative paths in params start here
     params = P.load(args.params.name)
+    args.weights = loss_weights(params)  # full's loss weights (every term on) for the throughput steps
     params["allow_random_init"] = True  # random weights: speed and correctness do not need the real ones
     params["train_depth"]["imagenet_weights"] = None
     params.setdefault("flow_pretrain", {})["checkpoint"] = None

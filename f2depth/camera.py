@@ -10,35 +10,12 @@ import cv2
 import numpy as np
 
 #: NYU Depth V2 RGB camera (toolbox ``camera_params.m``), 640×480.
-NYU_RGB_K = np.array(
-    [
-        [5.1885790117450188e02, 0.0, 3.2558244941119034e02],
-        [0.0, 5.1946961112127485e02, 2.5373616633400465e02],
-        [0.0, 0.0, 1.0],
-    ]
-)
+NYU_RGB_K = np.array([[5.1885790117450188e02, 0.0, 3.2558244941119034e02],
+                      [0.0, 5.1946961112127485e02, 2.5373616633400465e02], [0.0, 0.0, 1.0]])
 #: OpenCV order (k1, k2, p1, p2, k3).
-NYU_RGB_DIST = np.array(
-    [
-        2.0796615318809061e-01,
-        -5.8613825163911781e-01,
-        7.2231363135888329e-04,
-        1.0479627195765181e-03,
-        4.9856986684705107e-01,
-    ]
-)
+NYU_RGB_DIST = np.array([2.0796615318809061e-01, -5.8613825163911781e-01, 7.2231363135888329e-04,
+                         1.0479627195765181e-03, 4.9856986684705107e-01])
 NYU_SIZE_HW = (480, 640)
-
-
-def distort_normalized(xy: np.ndarray, dist: np.ndarray) -> np.ndarray:
-    """Brown–Conrady forward model (OpenCV's): ideal normalised (..., 2) → distorted normalised (..., 2)."""
-    k1, k2, p1, p2, k3 = (float(d) for d in dist[:5])
-    x, y = xy[..., 0], xy[..., 1]
-    r2 = x * x + y * y
-    radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
-    yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
-    return np.stack([xd, yd], axis=-1)
 
 
 def undistort_normalized(uv: np.ndarray, K: np.ndarray, dist: np.ndarray, iters: int = 50) -> np.ndarray:
@@ -69,24 +46,13 @@ def distortion_maps(K: np.ndarray, dist: np.ndarray, hw: tuple[int, int]) -> tup
     return map_x.astype(np.float32), map_y.astype(np.float32)
 
 
-def distort_image(image: np.ndarray, K: np.ndarray, dist: np.ndarray) -> np.ndarray:
-    """Ideal pinhole image → the image a camera with lens distortion ``dist`` records (bilinear)."""
-    map_x, map_y = distortion_maps(K, dist, image.shape[:2])
-    return cv2.remap(image, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-
-
 def undistort_image(image: np.ndarray, K: np.ndarray, dist: np.ndarray) -> np.ndarray:
     """``cv2.undistort`` with the same K for the output (as P²Net does): same size, same intrinsics."""
     return cv2.undistort(image, K, dist)
 
 
-def crop_resize_intrinsics(
-    K: np.ndarray,
-    src_hw: tuple[int, int],
-    crop: int,
-    dst_hw: tuple[int, int],
-    p2net_cxcy_bug: bool = False,
-) -> np.ndarray:
+def crop_resize_intrinsics(K: np.ndarray, src_hw: tuple[int, int], crop: int, dst_hw: tuple[int, int],
+                           p2net_cxcy_bug: bool = False) -> np.ndarray:
     """Intrinsics after cropping ``crop`` px from every side of a ``src_hw`` image and resizing to ``dst_hw``.
 
     With ``p2net_cxcy_bug`` the principal point is computed as P²Net's loader does (the *uncropped*
@@ -109,7 +75,3 @@ def crop_resize_intrinsics(
         out[1, 2] = (K[1, 2] - crop + 0.5) * sy - 0.5
     return out
 
-
-def resize_intrinsics(K: np.ndarray, src_hw: tuple[int, int], dst_hw: tuple[int, int]) -> np.ndarray:
-    """Intrinsics after a plain resize (no crop)."""
-    return crop_resize_intrinsics(K, src_hw, 0, dst_hw)

@@ -160,10 +160,8 @@ def _add_network(p: argparse.ArgumentParser, required: bool = True) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = OneLineParser(
-        prog="f2depth", description="F2Depth: self-supervised indoor monocular depth. Use a trained model.",
-        epilog=EXIT_NOTE,
-    )
+    about = "F2Depth: self-supervised indoor monocular depth. Use a trained model."
+    parser = OneLineParser(prog="f2depth", description=about, epilog=EXIT_NOTE)
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     fmt = argparse.RawDescriptionHelpFormatter
 
@@ -240,10 +238,6 @@ def _out(text: str) -> None:
     sys.stdout.write(text + "\n")
 
 
-def _warn(command: str, text: str) -> None:
-    sys.stderr.write(f"f2depth {command}: warning: {' '.join(str(text).split())}\n")
-
-
 def _cmd_predict(args: argparse.Namespace) -> int:
     from f2depth.inference.backends import load_backend
     from f2depth.inference.predict import Predictor, PredictSettings, run_predict
@@ -251,18 +245,17 @@ def _cmd_predict(args: argparse.Namespace) -> int:
 
     source = open_source(args.input)
     backend = load_backend(args.model, args.onnx, args.device)
-    settings = PredictSettings(
-        args.output, batch_size=args.batch_size, scale=args.scale, scale_from=args.scale_from, ply=args.ply,
-        K_args={"fx": args.fx, "fy": args.fy, "cx": args.cx, "cy": args.cy},
-        progress=False if args.no_progress else None,
-    )
+    settings = PredictSettings(args.output, batch_size=args.batch_size, scale=args.scale,
+                               scale_from=args.scale_from, ply=args.ply,
+                               K_args={"fx": args.fx, "fy": args.fy, "cx": args.cx, "cy": args.cy},
+                               progress=False if args.no_progress else None)
     predictor = Predictor(backend, post_process=args.post_process, upsample=args.upsample)
     summary = run_predict(source, predictor, settings, total=len(source), input_desc=str(args.input))
     kind = "metric" if summary["metric"] else "relative (no --scale/--scale-from)"
     _out(f"wrote {summary['frames']} frame(s) to {args.output} ({backend.name}, "
          f"scale {summary['scale']:.4g}, {kind})")
     for text in summary["warnings"]:
-        _warn(args.command, text)
+        sys.stderr.write(f"f2depth {args.command}: warning: {' '.join(str(text).split())}\n")
     return 0
 
 
@@ -312,11 +305,10 @@ def _cmd_reconstruct(args: argparse.Namespace) -> int:
     if args.depth_source == "predicted":
         backend = load_backend(args.model, args.onnx, args.device)
         predictor = Predictor(backend, post_process=args.post_process)
-    settings = ReconstructSettings(
-        args.output, tsdf=tsdf, scaling=args.scaling, scale=args.scale, depth_source=args.depth_source,
-        evaluate=args.evaluate, reference_mesh=args.reference_mesh, threshold=args.threshold,
-        batch_size=args.batch_size, progress=False if args.no_progress else None,
-    )
+    settings = ReconstructSettings(args.output, tsdf=tsdf, scaling=args.scaling, scale=args.scale,
+                                   depth_source=args.depth_source, evaluate=args.evaluate,
+                                   reference_mesh=args.reference_mesh, threshold=args.threshold,
+                                   batch_size=args.batch_size, progress=False if args.no_progress else None)
     summary = reconstruct(frames, predictor, settings)
     summary["sequence"] = str(args.sequence)
     if args.metrics is not None:

@@ -29,9 +29,7 @@ the whole curve.
 
 from __future__ import annotations
 
-import csv
 import hashlib
-import io
 import json
 import logging
 import math
@@ -48,7 +46,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from f2depth.io import torch_save, write_text
+from f2depth.io import csv_text, torch_save, write_text
 
 FORMAT = "f2depth.train_state"
 VERSION = 2
@@ -142,16 +140,9 @@ def clear_state(path: str | os.PathLike) -> None:
 def history_csv(rows: Iterable[Mapping[str, Any]], columns: Iterable[str]) -> str:
     """The rows as CSV text with ``columns`` (floats with 6 significant digits, blanks for gaps)."""
     columns = list(columns)
-    buf = io.StringIO()
-    w = csv.writer(buf, lineterminator="\n")
-    w.writerow(columns)
-    for row in rows:
-        w.writerow([_cell(row.get(c)) for c in columns])
-    return buf.getvalue()
-
-
-def _cell(v: Any) -> str:
-    return "" if v is None else f"{v:.6g}" if isinstance(v, float) else str(v)
+    cells = ((row.get(c) for c in columns) for row in rows)
+    return csv_text(columns, (["" if v is None else f"{v:.6g}" if isinstance(v, float) else v for v in r]
+                              for r in cells))
 
 
 def write_history(path: str | os.PathLike, rows: Iterable[Mapping[str, Any]], columns: Iterable[str]) -> None:

@@ -24,11 +24,8 @@ _SMALL_ANGLE2 = 1e-6
 
 def pixel_grid(height: int, width: int, dtype: torch.dtype = torch.float32, device=None) -> torch.Tensor:
     """Pixel coordinates ``(1,2,H,W)``, x (column) first, centres at integers."""
-    v, u = torch.meshgrid(
-        torch.arange(height, dtype=dtype, device=device),
-        torch.arange(width, dtype=dtype, device=device),
-        indexing="ij",
-    )
+    v, u = torch.meshgrid(torch.arange(height, dtype=dtype, device=device),
+                          torch.arange(width, dtype=dtype, device=device), indexing="ij")
     return torch.stack((u, v), dim=0).unsqueeze(0)
 
 
@@ -53,9 +50,8 @@ def transform_points(points: torch.Tensor, tgt_T_src: torch.Tensor) -> torch.Ten
     return out.reshape(b, 3, h, w)
 
 
-def project(
-    points: torch.Tensor, K: torch.Tensor, tgt_T_src: torch.Tensor
-) -> tuple[torch.Tensor, torch.Tensor]:
+def project(points: torch.Tensor, K: torch.Tensor,
+            tgt_T_src: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """Project src-frame points into the tgt camera: ``p = K · tgt_T_src · X``.
 
     points (B,3,H,W) metres in the src frame, K (B,3,3), tgt_T_src (B,4,4) →
@@ -86,14 +82,9 @@ def _skew(v: torch.Tensor) -> torch.Tensor:
     """Cross-product matrix: v (B,3) → [v]× (B,3,3)."""
     zero = torch.zeros_like(v[:, 0])
     x, y, z = v[:, 0], v[:, 1], v[:, 2]
-    return torch.stack(
-        (
-            torch.stack((zero, -z, y), dim=-1),
-            torch.stack((z, zero, -x), dim=-1),
-            torch.stack((-y, x, zero), dim=-1),
-        ),
-        dim=-2,
-    )
+    rows = (torch.stack((zero, -z, y), dim=-1), torch.stack((z, zero, -x), dim=-1),
+            torch.stack((-y, x, zero), dim=-1))
+    return torch.stack(rows, dim=-2)
 
 
 def axis_angle_to_matrix(aa: torch.Tensor) -> torch.Tensor:
@@ -107,9 +98,8 @@ def axis_angle_to_matrix(aa: torch.Tensor) -> torch.Tensor:
     safe2 = torch.where(small, torch.ones_like(theta2), theta2)
     safe = torch.sqrt(safe2)
     a_coef = torch.where(small, 1.0 - theta2 / 6.0 + theta2 * theta2 / 120.0, torch.sin(safe) / safe)
-    b_coef = torch.where(
-        small, 0.5 - theta2 / 24.0 + theta2 * theta2 / 720.0, (1.0 - torch.cos(safe)) / safe2
-    )
+    b_coef = torch.where(small, 0.5 - theta2 / 24.0 + theta2 * theta2 / 720.0,
+                         (1.0 - torch.cos(safe)) / safe2)
     k = _skew(aa)
     eye = torch.eye(3, dtype=aa.dtype, device=aa.device).expand_as(k)
     return eye + a_coef[:, None, None] * k + b_coef[:, None, None] * torch.matmul(k, k)
@@ -123,9 +113,8 @@ def make_transform(R: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
     return torch.cat((torch.cat((R, t.reshape(b, 3, 1)), dim=2), bottom), dim=1)
 
 
-def pose_from_params(
-    axisangle: torch.Tensor, translation: torch.Tensor, invert: bool = False
-) -> torch.Tensor:
+def pose_from_params(axisangle: torch.Tensor, translation: torch.Tensor,
+                     invert: bool = False) -> torch.Tensor:
     """Monodepth2's ``transformation_from_parameters``: axisangle (B,3), translation (B,3) → T (B,4,4).
 
     ``invert=False``: ``T = T(t)·R(aa)`` = [[R, t], [0, 1]] (rotate, then translate).
@@ -171,10 +160,8 @@ def warp(img: torch.Tensor, flow: torch.Tensor, padding: str = "border") -> torc
     (ARFlow's images and features) or "zeros" (ARFlow's flow warp in its occlusion check).
     """
     if img.shape[-2:] != flow.shape[-2:] or flow.shape[1] != 2:
-        raise ValueError(
-            f"warp: img {tuple(img.shape)} and flow {tuple(flow.shape)} must share (H, W); "
-            "flow needs 2 channels"
-        )
+        raise ValueError(f"warp: img {tuple(img.shape)} and flow {tuple(flow.shape)} must share (H, W); "
+                         "flow needs 2 channels")
     grid = _normalised_grid(flow)
     return F.grid_sample(img, grid, mode="bilinear", padding_mode=padding, align_corners=True)
 
@@ -204,13 +191,8 @@ def in_view_mask(flow: torch.Tensor) -> torch.Tensor:
 
 
 @torch.no_grad()
-def occlusion_by_depth(
-    depth_t: torch.Tensor,
-    depth_s: torch.Tensor,
-    K: torch.Tensor,
-    src_T_tgt: torch.Tensor,
-    rel_tol: float = 0.02,
-) -> torch.Tensor:
+def occlusion_by_depth(depth_t: torch.Tensor, depth_s: torch.Tensor, K: torch.Tensor, src_T_tgt: torch.Tensor,
+                       rel_tol: float = 0.02) -> torch.Tensor:
     """Target pixels hidden in the source view: projected depth z > (1 + rel_tol) · D_s(projection).
 
     depth_t, depth_s (B,1,H,W) metres (0 = invalid), K (B,3,3), src_T_tgt (B,4,4) → occluded (B,1,H,W)
@@ -222,8 +204,7 @@ def occlusion_by_depth(
     pix, z = project(points, K, src_T_tgt)
     _, _, h, w = depth_t.shape
     flow = pix - pixel_grid(h, w, depth_t.dtype, depth_t.device)
-    sampled = F.grid_sample(
-        depth_s, _normalised_grid(flow), mode="nearest", padding_mode="border", align_corners=True
-    )
+    sampled = F.grid_sample(depth_s, _normalised_grid(flow), mode="nearest", padding_mode="border",
+                            align_corners=True)
     known = (sampled > 0) & (z > 0) & (depth_t > 0) & (in_view_mask(flow) > 0)
     return known & (z > sampled * (1.0 + rel_tol))

@@ -9,6 +9,8 @@ new one is complete.
 from __future__ import annotations
 
 import contextlib
+import csv
+import io
 import json
 import os
 import pickle
@@ -16,7 +18,7 @@ import re
 import shutil
 import struct
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -42,9 +44,8 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
     """
     dest = Path(path)
     dest.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(
-        prefix=f".{dest.name}.", suffix=suffix if suffix is not None else dest.suffix, dir=dest.parent
-    )
+    fd, tmp = tempfile.mkstemp(prefix=f".{dest.name}.", suffix=suffix if suffix is not None else dest.suffix,
+                               dir=dest.parent)
     os.close(fd)
     os.chmod(tmp, _FILE_MODE)  # mkstemp makes 0600 files; give them the mode open() would
     tmp_path = Path(tmp)
@@ -86,6 +87,15 @@ def write_text(path: str | os.PathLike, text: str) -> None:
         tmp.write_text(text)
 
 
+def csv_text(header: Sequence[str], rows: Iterable[Sequence[Any]]) -> str:
+    """CSV text with ``\n`` line ends: the header, then the rows (None and "" are empty cells)."""
+    buf = io.StringIO()
+    writer = csv.writer(buf, lineterminator="\n")
+    writer.writerow(header)
+    writer.writerows(rows)
+    return buf.getvalue()
+
+
 def write_json(path: str | os.PathLike, obj: Any) -> None:
     """Write ``obj`` as indented JSON (NumPy scalars and arrays converted)."""
 
@@ -122,10 +132,14 @@ def imwrite(path: str | os.PathLike, image: np.ndarray, params: list[int] | None
         else:
             detail = ""
         if not ok:
-            raise OSError(
-                f"{path}: OpenCV could not write (unsupported extension or dtype {image.dtype}) "
-                f"{detail}".strip()
-            )
+            raise OSError(f"{path}: OpenCV could not write (unsupported extension or dtype {image.dtype}) "
+                          f"{detail}".strip())
+
+
+def write_rgb(path: str | os.PathLike, rgb: np.ndarray, jpeg_quality: int = 95) -> None:
+    """RGB uint8 (H, W, 3) → PNG / binary PPM / JPEG by extension, atomically (stored BGR by OpenCV)."""
+    jpeg = [cv2.IMWRITE_JPEG_QUALITY, jpeg_quality] if str(path).lower().endswith((".jpg", ".jpeg")) else []
+    imwrite(path, np.ascontiguousarray(rgb[..., ::-1]), jpeg)
 
 
 def torch_save(path: str | os.PathLike, obj: Any) -> None:

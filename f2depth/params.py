@@ -93,7 +93,7 @@ def section(params: dict[str, Any], key: str, cls: type, *more: type, **given: A
 
 def value(params: dict[str, Any], key: str, kind: Any, **rules: Any) -> Any:
     """The params value ``key`` (dotted) checked against the type ``kind`` and :data:`RULES`
-    (``value(p, "lambda3", float, min=0)``)."""
+    (``value(p, "loss_weights.feature", float, min=0)``)."""
     return _check(_file(params), key, get(params, key), kind, rules)
 
 
@@ -104,6 +104,21 @@ def device(params: dict[str, Any]) -> str:
         return resolve_device(name)
     except ParamsError as exc:
         raise ParamsError(f"{_file(params)}: {exc}") from None
+
+
+def reject_unknown(path: str | os.PathLike, key: str, names: Any, known: Any, what: str = "keys") -> None:
+    """Raise :class:`ParamsError` when ``names`` (the keys, or with ``what`` another word the entries, of the
+    params value ``key``) has any that is not in ``known``: one line with a did-you-mean hint for each close
+    match, else the known names."""
+    known = [str(k) for k in known]
+    unknown = sorted({str(n) for n in names} - set(known))
+    if not unknown:
+        return
+    where = (lambda k: f"{key}.{k}") if what == "keys" else repr
+    hints = [f"{where(k)}: did you mean {m[0]}?" for k in unknown
+             if (m := difflib.get_close_matches(k, known, n=1))]
+    raise ParamsError(f"{path}: {key}: unknown {what} {unknown}" + "".join(f"; {h}" for h in hints)
+                      + ("" if hints else f"; known: {', '.join(sorted(known))}"))
 
 
 def _file(params: dict[str, Any]) -> str:
@@ -117,12 +132,7 @@ def _build(path: str, key: str, node: Any, classes: tuple[type, ...], given: dic
               if f.init and not f.metadata.get("fixed")}
     if set(given) - set(fields):
         raise TypeError(f"{key}: given values {sorted(set(given) - set(fields))} are no fields of {classes}")
-    unknown = sorted(set(node) - set(fields))
-    if unknown:
-        hints = [f"{key}.{k}: did you mean {m[0]}?" for k in unknown
-                 if (m := difflib.get_close_matches(k, list(fields), n=1))]
-        raise ParamsError(f"{path}: {key}: unknown keys {unknown}" + "".join(f"; {h}" for h in hints)
-                          + ("" if hints else f"; known: {', '.join(sorted(fields))}"))
+    reject_unknown(path, key, node, [name for name in fields if name not in given])
     kwargs: dict[type, dict[str, Any]] = {cls: {} for cls in classes}
     hints = {cls: typing.get_type_hints(cls) for cls in classes}
     for name, (cls, f) in fields.items():

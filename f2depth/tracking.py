@@ -75,9 +75,8 @@ def tracking_uri() -> str:
 
 def git_commit(cwd: str | os.PathLike = ".") -> str:
     try:
-        out = subprocess.run(
-            ["git", "rev-parse", "HEAD"], cwd=cwd, capture_output=True, text=True, check=True, timeout=10
-        )
+        out = subprocess.run(["git", "rev-parse", "HEAD"], cwd=cwd, capture_output=True, text=True,
+                             check=True, timeout=10)
     except (OSError, subprocess.SubprocessError):
         return "unknown"
     return out.stdout.strip()
@@ -156,11 +155,8 @@ class StageRun:
         from mlflow.entities import Metric
 
         now = int(time.time() * 1000)
-        items = [
-            Metric(metric_name(k), float(v), now, step or 0)
-            for k, v in flatten(metrics).items()
-            if isinstance(v, (int, float)) and not isinstance(v, bool)
-        ]
+        items = [Metric(metric_name(k), float(v), now, step or 0) for k, v in flatten(metrics).items()
+                 if isinstance(v, (int, float)) and not isinstance(v, bool)]
         if items:
             with self._guard():
                 self._client.log_batch(self.run_id, metrics=items)
@@ -194,24 +190,18 @@ class StageRun:
 def _parent_run(client: Any, experiment_id: str, commit: str, exp_name: str) -> str:
     dvc_pid = _dvc_process_id()
     key = f"{commit}:{exp_name}:{dvc_pid if dvc_pid is not None else os.getpid()}"
-    found = client.search_runs(
-        [experiment_id], filter_string=f"tags.`{PARENT_KEY_TAG}` = '{key}'", max_results=1
-    )
+    found = client.search_runs([experiment_id], filter_string=f"tags.`{PARENT_KEY_TAG}` = '{key}'",
+                               max_results=1)
     if found:
         return found[0].info.run_id
-    run = client.create_run(
-        experiment_id,
-        run_name=f"{exp_name}@{commit[:7]}",
-        tags={PARENT_KEY_TAG: key, "git_commit": commit, "dvc_experiment": exp_name, "kind": "pipeline"},
-    )
+    run = client.create_run(experiment_id, run_name=f"{exp_name}@{commit[:7]}", tags={
+        PARENT_KEY_TAG: key, "git_commit": commit, "dvc_experiment": exp_name, "kind": "pipeline"})
     return run.info.run_id
 
 
 @contextlib.contextmanager
-def stage_run(
-    stage: str, params: Mapping[str, Any], variant: str | None = None, sections: tuple[str, ...] = (),
-    closes_pipeline: bool = False,
-) -> Iterator[StageRun]:
+def stage_run(stage: str, params: Mapping[str, Any], variant: str | None = None,
+              sections: tuple[str, ...] = (), closes_pipeline: bool = False) -> Iterator[StageRun]:
     """Open the child run of ``stage`` (and ``variant``) under this pipeline's parent run.
 
     ``params`` is the whole params.yaml dict; ``sections`` selects what is logged (default: the
@@ -254,17 +244,9 @@ def _open_run(stage: str, variant: str | None) -> tuple[StageRun, str | None]:
         exp_name = os.environ.get("DVC_EXP_NAME", "workspace")
         parent_id = _parent_run(client, experiment_id, commit, exp_name)
         name = os.environ.get("DVC_STAGE") or (f"{stage}@{variant}" if variant else stage)
-        run = client.create_run(
-            experiment_id,
-            run_name=name,
-            tags={
-                "mlflow.parentRunId": parent_id,
-                "git_commit": commit,
-                "dvc_experiment": exp_name,
-                "stage": stage,
-                "variant": variant or "",
-            },
-        )
+        run = client.create_run(experiment_id, run_name=name, tags={
+            "mlflow.parentRunId": parent_id, "git_commit": commit, "dvc_experiment": exp_name, "stage": stage,
+            "variant": variant or ""})
     except Exception as exc:  # noqa: BLE001 — the mirror must never break a stage
         mirror_off(_first_line(exc))
         return StageRun(), None
@@ -272,10 +254,10 @@ def _open_run(stage: str, variant: str | None) -> tuple[StageRun, str | None]:
 
 
 def mirror_stage(stage: str, params: Mapping[str, Any], metrics: Mapping[str, Any],
-                 artifacts: tuple[str | os.PathLike, ...] = (), sections: tuple[str, ...] = ()) -> None:
+                 artifacts: tuple[str | os.PathLike, ...] = ()) -> None:
     """Mirror a finished stage that needs no per-epoch logging (synth, prepare, keypoints, figures):
     its params, the numbers of its metrics file and ``artifacts`` (files or folders), as a child run."""
-    with stage_run(stage, params, sections=sections) as run:
+    with stage_run(stage, params) as run:
         run.log_metrics(metrics)
         for path in artifacts:
             run.log_artifact(path)

@@ -38,7 +38,7 @@ from f2depth.eval.suite import SuiteConfig, evaluate_model, metrics_document, mo
 from f2depth.io import save_npz, write_json, write_text
 from f2depth.stage import run_stage
 
-TRAINED_KEYS = ("flow_model", "weights", "lambda_sources", "epochs", "batch_size", "seeds")
+TRAINED_KEYS = ("flow_model", "weights", "without", "epochs", "batch_size", "seeds")
 
 
 @dataclass(frozen=True)

@@ -14,9 +14,6 @@ The training state goes to `<resume_dir>/<loss>.pt` after every epoch and is rem
 """
 
 import argparse
-import csv
-import hashlib
-import io
 import sys
 import time
 from dataclasses import dataclass, field
@@ -28,6 +25,7 @@ import torch
 from f2depth import params as P
 from f2depth import tracking
 from f2depth.data.prepared import PreparedSet
+from f2depth.epochs import file_digest, write_history
 from f2depth.eval.tables import format_value as fmt
 from f2depth.flow.checkpoint import load_flow_model, save_flow_model
 from f2depth.flow.finetune import (
@@ -39,7 +37,7 @@ from f2depth.flow.finetune import (
     zero_flow_epe,
 )
 from f2depth.flow.finetune_data import FlowPairs, gt_pairs, split_pairs
-from f2depth.io import write_json, write_text
+from f2depth.io import write_json
 from f2depth.keypoints.store import KeypointFile
 from f2depth.stage import run_stage
 
@@ -59,29 +57,12 @@ class FinetuneStage:
 
 
 def config_from_params(p: dict, loss: str = "patch") -> tuple[FinetuneConfig, FinetuneStage]:
-    smooth = P.value(p, "lambda_flow_smooth", float, min=0)
+    smooth = P.value(p, "loss_weights.flow_smooth", float, min=0)
     return P.section(p, "flow_finetune", FinetuneConfig, FinetuneStage, loss=loss,
                      seed=P.value(p, "seed", int), smooth_weight=smooth)
 
 
 EPE_KEYS = ("epe_all", "epe_noc", "epe_low_texture", "epe_occ", "magnitude_ratio", "cosine", "pairs")
-
-
-def sha256(path: str | Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for chunk in iter(lambda: fh.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
-
-
-def write_history(path: Path, history: list[dict]) -> None:
-    buf = io.StringIO()
-    writer = csv.writer(buf, lineterminator="\n")
-    writer.writerow(HISTORY_COLUMNS)
-    for row in history:
-        writer.writerow(["" if row.get(k) is None else row[k] for k in HISTORY_COLUMNS])
-    write_text(path, buf.getvalue())
 
 
 def _epe(d: dict) -> dict:
@@ -118,20 +99,20 @@ def main(argv: list[str]) -> None:
     test = list(gt_pairs(ds, split.test))
     before = {"test": _epe(evaluate_epe(model, test, device)),
               "train": _epe(evaluate_epe(model, gt_pairs(ds, split.train, train_limit), device))}
-    fingerprint = {"pretrained_sha256": sha256(pretrained),
-                   "keypoints_sha256": sha256(kp_path) if keypoints is not None else None}
+    fingerprint = {"pretrained_sha256": file_digest(pretrained),
+                   "keypoints_sha256": file_digest(kp_path) if keypoints is not None else None}
     with tracking.stage_run("flow_finetune", p, variant=loss) as run:
         def on_epoch(epoch: int, row: dict, history: list[dict]) -> None:
-            write_history(history_csv, history)
+            write_history(history_csv, history, HISTORY_COLUMNS)
             run.log_metrics({k: v for k, v in row.items() if k != "epoch"}, step=epoch)
 
         info = finetune(model, FlowPairs(ds, split.train, keypoints), cfg, test, resume_path, fingerprint,
                         device, stage.workers, on_epoch)
-        write_history(history_csv, info["history"])
+        write_history(history_csv, info["history"], HISTORY_COLUMNS)
         save_flow_model(model_path, model,
                         config={"source": "flow_finetune", "loss": loss, "pretrained": str(pretrained),
                                 "train_scenes": split.train_scenes, "test_scenes": split.test_scenes},
-                        params={**P.get(p, "flow_finetune"), "lambda_flow_smooth": cfg.smooth_weight,
+                        params={**P.get(p, "flow_finetune"), "flow_smooth": cfg.smooth_weight,
                                 "seed": cfg.seed})
         after = {"test": _epe(evaluate_epe(model, test, device)),
                  "train": _epe(evaluate_epe(model, gt_pairs(ds, split.train, train_limit), device))}

@@ -10,7 +10,8 @@ Sintel-layout set at `data.sintel` — the synthetic animated set (`source: synt
 interruption. Writes `model` (recording the network's name),
 metrics/flow_pretrain.json (EPE, magnitude ratio Σ|flow|/Σ|gt| and mean cosine to the true flow of the
 model and of zero flow on the held-out sequences and, with `eval_prepared`, on the prepared pairs with
-ground truth) and colour-wheel figures into `figure_dir`.
+ground truth), metrics/flow_pretrain/history.csv (one row per training epoch; only the header for an
+imported model) and colour-wheel figures into `figure_dir`.
 """
 
 import sys
@@ -23,14 +24,16 @@ import torch
 from f2depth import params as P
 from f2depth import tracking
 from f2depth.data.sintel import list_pairs, list_sequences
+from f2depth.epochs import write_history
 from f2depth.eval.tables import format_value as fmt
 from f2depth.flow import NETWORKS, build_network, load_flow_model, save_flow_model
-from f2depth.flow.pretrain import PretrainConfig, clear_resume, pretrain
+from f2depth.flow.pretrain import HISTORY_COLUMNS, PretrainConfig, clear_resume, pretrain
 from f2depth.flow.validate import evaluate_prepared, evaluate_sintel
 from f2depth.io import write_json
 from f2depth.stage import run_stage
 
 METRICS = "metrics/flow_pretrain.json"
+HISTORY = "metrics/flow_pretrain/history.csv"
 
 
 @dataclass(frozen=True)
@@ -103,9 +106,11 @@ def main(argv: list[str]) -> None:
             metrics["prepared"] = evaluate_prepared(model, P.get(p, "data.prepared"),
                                                     stage.eval_prepared_pairs, device, figures, n_fig)
         metrics["seconds"] = round(time.perf_counter() - t0, 1)
+        write_history(HISTORY, metrics.get("training", {}).get("history", []), HISTORY_COLUMNS)
         write_json(METRICS, metrics)
         run.log_metrics({k: v for k, v in metrics.items() if k.startswith(("heldout_", "prepared"))})
         run.log_artifact(stage.model)
+        run.log_artifact(HISTORY)
         run.log_artifact(figures, "figures")
     clear_resume(stage.resume_dir)
     for name, res in metrics.items():
@@ -121,7 +126,6 @@ def main(argv: list[str]) -> None:
                       f"(swap cos {m['swap_consistency']:.2f}): the network's output does not follow the "
                       "images; its EPE and cosine there measure a constant field (docs/flow_pretrain.md)")
     print(f"flow_pretrain: {metrics['seconds']} s → {stage.model}")
-
 
 
 if __name__ == "__main__":

@@ -37,14 +37,15 @@ def main(argv: list[str]) -> None:
     ap.add_argument("--headline", default="metrics/tables.json", help="metrics file of the headline numbers")
     args = ap.parse_args(argv[1:])
     p = P.load(args.params)
-    variants = P.value(p, "variants", dict)
-    results = load_variants(list(variants), args.metrics, args.eval)
+    variants = list(P.value(p, "variants", dict))
+    results = load_variants(variants, args.metrics, args.eval)
     flow_dir = Path(P.value(p, "flow_finetune.out_dir", str))
     losses = P.value(p, "flow_finetune.losses", list[str])
     pretrained, template = P.value(p, "flow_finetune.pretrained", str), P.value(p, "flow_finetune.model", str)
     flow = {loss: read_json(flow_dir / f"{loss}.json", f"run `dvc repro flow_finetune@{loss}`")
             for loss in losses}
-    epe = {v: flow_epe(spec.get("flow_model"), flow, pretrained, template) for v, spec in variants.items()}
+    epe = {v: flow_epe(P.value(p, f"variants.{v}.flow", str | None), flow, pretrained, template)
+           for v in variants}
     depth_hist = {v: read_history(Path(args.train_metrics) / v / "history.csv") for v in variants}
     flow_hist = {loss: read_history(flow_dir / loss / "history.csv") for loss in losses}
     tables = build_tables(results, epe)

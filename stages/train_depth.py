@@ -3,8 +3,8 @@
 Usage: python stages/train_depth.py --variant NAME [--params params.yaml] [--no-resume]
        torchrun --nproc_per_node=N stages/train_depth.py --variant NAME   (several GPUs / processes)
 
-Reads `train_depth`, the top-level lambdas, `data.*` and `variants.NAME` (lambda_rigid and lambda3 from the
-files the variant names). Writes models/depth_NAME/{seed<k>.pt, model.pt (= the first seed's)},
+Reads `train_depth`, `loss_weights`, `data.*` and `variants.NAME` (its flow model and the loss terms it
+switches off). Writes models/depth_NAME/{seed<k>.pt, model.pt (= the first seed's)},
 metrics/train_depth/NAME.json and metrics/train_depth/NAME/history.csv. A killed run resumes from its
 last epoch checkpoint unless --no-resume is given. With ground truth in the prepared set (the
 synthetic default) every epoch also logs depth accuracy and pose errors on the training tuples

@@ -75,6 +75,16 @@ def checksum(out: Values, name: str, x) -> None:
     out[f"{name}.weighted"] = float((a * (np.arange(a.size) % 251 + 1)).sum())
 
 
+#: The store's names of the terms L_sm and L_spp, from before issue #16 named each term as its weight in
+#: params.yaml ``loss_weights`` (smooth, planar); the values are the same.
+STORED_TERM_NAMES = {"smooth": "sm", "planar": "spp"}
+
+
+def stored_terms(logs: Mapping[str, float]) -> dict[str, float]:
+    """Loss logs (term → value) under the store's term names."""
+    return {STORED_TERM_NAMES.get(k, k): v for k, v in logs.items()}
+
+
 def put(out: Values, prefix: str, values: Mapping[str, object]) -> None:
     """Copy the numeric entries of ``values`` as ``prefix.key`` (None and text are left out)."""
     for k, v in values.items():
@@ -148,7 +158,6 @@ def depth_losses() -> Values:
     """L_ph, L_sm, L_spp, L_rigid, L_feature, their weighted sums and SSIM, with gradients."""
     from f2depth.geometry import in_view_mask, rigid_flow
     from f2depth.losses import (
-        LossWeights,
         edge_aware_smoothness,
         feature_synthesis_loss,
         fit_planes,
@@ -200,16 +209,16 @@ def depth_losses() -> Values:
     out["feature.in_view"] = float(in_view_mask(big).sum())
     _grad(out, "feature", feature, [depth])
 
-    terms = {"ph": ph, "sm": sm, "spp": spp, "rigid": rigid, "feature": feature}
-    weight_sets = {"paper": LossWeights(lambda1=0.001, lambda2=0.05, lambda3=3.0, lambda_rigid=1.0),
-                   "other": LossWeights(lambda1=0.01, lambda2=0.1, lambda3=2.0, lambda_rigid=0.5)}
+    terms = {"ph": ph, "smooth": sm, "planar": spp, "rigid": rigid, "feature": feature}
+    weight_sets = {"paper": {"smooth": 0.001, "planar": 0.05, "rigid": 1.0, "feature": 3.0},
+                   "other": {"smooth": 0.01, "planar": 0.1, "rigid": 0.5, "feature": 2.0}}
     for name, weights in weight_sets.items():
         loss, logs = total_loss(terms, weights)
-        put(out, f"total_{name}", logs)
+        put(out, f"total_{name}", stored_terms(logs))
         _grad(out, f"total_{name}", loss, [depth])
-    base = LossWeights(lambda1=0.001, lambda2=0.05, lambda3=0.0, lambda_rigid=0.0)
-    _, logs = total_loss({k: terms[k] for k in ("ph", "sm", "spp")}, base)
-    put(out, "total_baseline", logs)
+    base = {"smooth": 0.001, "planar": 0.05, "rigid": 0.0, "feature": 0.0}
+    _, logs = total_loss({k: terms[k] for k in ("ph", "smooth", "planar")}, base)
+    put(out, "total_baseline", stored_terms(logs))
 
     summary(out, "ssim_dense", ssim_dense(s["target"], s["prev"]))
     a = smooth(g, (2, 3, 40, 9), (5, 3))
@@ -518,11 +527,10 @@ def depth_train_step() -> Values:
 
     from f2depth.depth import DepthModel, DepthModelConfig
     from f2depth.flow import PWCLite
-    from f2depth.losses import LossWeights
     from f2depth.superpixels import scaled_min_area
     from f2depth.train.data import DataConfig, TupleDataset
     from f2depth.train.schedule import LRSchedule
-    from f2depth.train.step import StepConfig, train_step
+    from f2depth.train.step import TERMS, StepConfig, train_step
     from f2depth.train.teacher import FlowTeacher
 
     out: Values = {}
@@ -538,8 +546,10 @@ def depth_train_step() -> Values:
         for e in range(epochs):
             out[f"lr_{epochs}_epochs.{e}"] = schedule.lr(e)
     variants = {
-        "full": (LossWeights(lambda1=0.001, lambda2=0.05, lambda3=3.0, lambda_rigid=1.0), True),
-        "baseline": (LossWeights(lambda1=0.001, lambda2=0.05, lambda3=0.0, lambda_rigid=0.0), False),
+        # every term of the step by name (a term added later: logged with weight 0, the store rewritten)
+        "full": ({**dict.fromkeys(TERMS, 0.0), "smooth": 0.001, "planar": 0.05, "rigid": 1.0, "feature": 3.0},
+                 True),
+        "baseline": ({**dict.fromkeys(TERMS, 0.0), "smooth": 0.001, "planar": 0.05}, False),
     }
     for name, (weights, with_teacher) in variants.items():
         torch.manual_seed(100)
@@ -550,7 +560,7 @@ def depth_train_step() -> Values:
         optimizer = torch.optim.Adam(model.parameters(), lr=1e-4)
         config = StepConfig(weights=weights, min_area=scaled_min_area(64, 64), amp=False)
         loss, logs = train_step(model, optimizer, batch, teacher, config)
-        put(out, f"{name}.log", logs)
+        put(out, f"{name}.log", stored_terms(logs))
         out[f"{name}.loss"] = float(loss)
         _model_values(out, name, model)
     return out

@@ -13,6 +13,8 @@ import numpy as np
 import torch
 
 from f2depth.depth import DepthModel, DepthModelConfig, save_checkpoint
+from f2depth.inference.outputs import _PLY_DTYPE
+from f2depth.io import write_rgb
 from f2depth.synth import writers
 
 NET_HW = (64, 96)
@@ -101,10 +103,23 @@ def write_box_sequence(images: Path, gt: Path, count: int = 6, hw: tuple[int, in
         T = yaw_pose(2 * np.pi * k / count, (0.3 * np.cos(k), 0.1, 0.3 * np.sin(k)))
         rgb, depth = render_box(T, K, hw)
         stem = f"frame-{k:06d}"
-        writers.write_rgb(images / f"{stem}.color.png", rgb)
+        write_rgb(images / f"{stem}.color.png", rgb)
         writers.write_gt(gt / f"{stem}.npz", depth, T, K)
         if sevenscenes:
             writers.write_pose_txt(images / f"{stem}.pose.txt", T)
             writers.write_depth_mm(images / f"{stem}.depth.png", depth)
         poses.append(T)
     return poses
+
+
+def read_ply_points(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """Read a point cloud written by ``f2depth.inference.outputs.encode_ply`` → (points (N,3) float32,
+    colours (N,3) uint8)."""
+    data = Path(path).read_bytes()
+    end = data.find(b"end_header\n")
+    assert data.startswith(b"ply\n") and end >= 0, f"{path}: not a PLY file"
+    header = data[:end].decode("ascii").splitlines()
+    assert "format binary_little_endian 1.0" in header
+    n = next(int(line.split()[2]) for line in header if line.startswith("element vertex"))
+    verts = np.frombuffer(data, _PLY_DTYPE, count=n, offset=end + len(b"end_header\n"))
+    return np.stack([verts[a] for a in "xyz"], 1), np.stack([verts[c] for c in ("red", "green", "blue")], 1)

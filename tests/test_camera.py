@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import cv2
 import fakes
 import numpy as np
 import pytest
@@ -11,13 +12,27 @@ from f2depth.camera import (
     NYU_RGB_K,
     NYU_SIZE_HW,
     crop_resize_intrinsics,
-    distort_image,
-    distort_normalized,
-    resize_intrinsics,
+    distortion_maps,
     undistort_image,
     undistort_normalized,
 )
 from f2depth.data.prepare import crop_and_resize, prepare_image
+
+
+def distort_normalized(xy: np.ndarray, dist: np.ndarray) -> np.ndarray:
+    """Brown–Conrady forward model (OpenCV's): ideal normalised (..., 2) → distorted normalised (..., 2)."""
+    k1, k2, p1, p2, k3 = (float(d) for d in dist[:5])
+    x, y = xy[..., 0], xy[..., 1]
+    r2 = x * x + y * y
+    radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    return np.stack([x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x),
+                     y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y], axis=-1)
+
+
+def distort_image(image: np.ndarray, K: np.ndarray, dist: np.ndarray) -> np.ndarray:
+    """Ideal pinhole image → the image the distorted lens records, as f2depth.synth renders NYU raw frames."""
+    map_x, map_y = distortion_maps(K, dist, image.shape[:2])
+    return cv2.remap(image, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
 
 
 def _project(K: np.ndarray, X: np.ndarray) -> np.ndarray:
@@ -99,7 +114,3 @@ def test_nearest_depth_resize_keeps_alignment():
     assert set(np.unique(out)) == {1.0, 2.0}
     assert abs(cols[0] - 0.5 - edge_new) <= 0.5
 
-
-def test_resize_intrinsics_is_crop_zero():
-    np.testing.assert_allclose(resize_intrinsics(NYU_RGB_K, NYU_SIZE_HW, (240, 320)),
-                               crop_resize_intrinsics(NYU_RGB_K, NYU_SIZE_HW, 0, (240, 320)))

@@ -15,7 +15,6 @@ import numpy as np
 import pytest
 
 from f2depth.cli import main
-from f2depth.inference.outputs import read_ply_points
 
 
 @pytest.fixture(scope="module")
@@ -79,7 +78,7 @@ def test_predict_image_ply_with_given_intrinsics_and_scale_from(ckpt, tmp_path):
     assert code == 0
     depth = np.load(tmp_path / "out" / "img_00_depth.npy")
     assert np.median(depth) == pytest.approx(2.0, rel=1e-5)  # median scaling to the reference
-    points, colours = read_ply_points(tmp_path / "out" / "img_00_points.ply")
+    points, colours = inference_data.read_ply_points(tmp_path / "out" / "img_00_points.ply")
     K = np.array([[70.0, 0, 29.0], [0, 72.0, 20.5], [0, 0, 1]])
     uv = (K @ points.T.astype(np.float64)).T
     v, u = np.mgrid[0:40, 0:60]

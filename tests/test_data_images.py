@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from f2depth.data.errors import DataError
-from f2depth.data.images import read_image, read_png16, write_rgb
+from f2depth.data.images import read_image, read_png16
+from f2depth.io import write_rgb
 
 
 @pytest.mark.parametrize("ext", ["ppm", "png", "jpg"])

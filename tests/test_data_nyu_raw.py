@@ -1,4 +1,4 @@
-"""Tests for f2depth.data.nyu_raw: scene and frame listing, name parsing, frame reading."""
+"""Tests for f2depth.data.nyu_raw: scene and frame listing (names parsed and checked), frame reading."""
 
 from __future__ import annotations
 
@@ -7,13 +7,7 @@ import numpy as np
 import pytest
 
 from f2depth.data.errors import DataError
-from f2depth.data.nyu_raw import list_frames, list_scenes, parse_raw_name, read_frame
-
-
-def test_parse_raw_name():
-    assert parse_raw_name("r-1315244969.851995-2619100169.ppm") == (1315244969.851995, 2619100169)
-    with pytest.raises(DataError, match="not an NYU raw RGB frame name"):
-        parse_raw_name("d-1315244969.851995-2619100169.pgm")
+from f2depth.data.nyu_raw import list_frames, list_scenes, read_frame
 
 
 def test_scenes_and_frames_sorted_by_timestamp(tmp_path):

@@ -6,16 +6,15 @@ import pytest
 import torch
 
 from f2depth.depth import (
-    DepthDecoder,
     DepthModel,
     DepthModelConfig,
-    ResnetEncoder,
     disp_to_depth,
     load_checkpoint,
     read_checkpoint,
     save_checkpoint,
 )
-from f2depth.depth.decoder import sigmoid_input_for_depth
+from f2depth.depth.decoder import DepthDecoder, sigmoid_input_for_depth
+from f2depth.depth.encoder import ResnetEncoder
 from f2depth.depth.resnet import ResNet
 
 
@@ -137,10 +136,10 @@ def test_config_validation():
 
 def test_checkpoint_round_trip(tmp_path, model):
     path = tmp_path / "depth.pt"
-    save_checkpoint(path, model, params={"lambda3": 3.0}, epoch=2)
+    save_checkpoint(path, model, params={"weights": {"feature": 3.0}}, epoch=2)
     ckpt = read_checkpoint(path)
     assert ckpt["format"] == "f2depth.depth" and ckpt["version"] == 1 and ckpt["epoch"] == 2
-    assert ckpt["params"] == {"lambda3": 3.0}
+    assert ckpt["params"] == {"weights": {"feature": 3.0}}
     loaded = load_checkpoint(path).eval()
     assert loaded.config == model.config
     img = torch.rand(1, 3, 64, 96)

@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from f2depth.depth.encoder import ResnetEncoder
-from f2depth.depth.resnet import ResNet, load_imagenet_resnet18
+from f2depth.depth.resnet import ResNet, load_imagenet_resnet
 
 BN = ("weight", "bias", "running_mean", "running_var", "num_batches_tracked")
 
@@ -53,7 +53,7 @@ def _fake_imagenet_file(tmp_path, drop_nbt: bool = False):
 @pytest.mark.parametrize("drop_nbt", [False, True])
 def test_imagenet_state_dict_loads_by_path(tmp_path, drop_nbt):
     path, state = _fake_imagenet_file(tmp_path, drop_nbt)
-    loaded = load_imagenet_resnet18(path)
+    loaded = load_imagenet_resnet(path, 18)
     enc = ResnetEncoder(18)
     enc.load_imagenet(loaded)
     for k, v in enc.state_dict().items():
@@ -64,7 +64,7 @@ def test_imagenet_state_dict_loads_by_path(tmp_path, drop_nbt):
 def test_six_channel_conv_is_halved_duplicate(tmp_path):
     path, state = _fake_imagenet_file(tmp_path)
     enc = ResnetEncoder(18, num_input_images=2)
-    enc.load_imagenet(load_imagenet_resnet18(path))
+    enc.load_imagenet(load_imagenet_resnet(path, 18))
     w = enc.conv1.weight.detach()
     assert w.shape == (64, 6, 7, 7)
     assert torch.allclose(w[:, :3], state["conv1.weight"] / 2)
@@ -78,22 +78,22 @@ def test_six_channel_conv_is_halved_duplicate(tmp_path):
 
 def test_wrong_files_raise_clear_errors(tmp_path):
     with pytest.raises(FileNotFoundError, match="imagenet_weights"):
-        load_imagenet_resnet18(tmp_path / "nope.pth")
+        load_imagenet_resnet(tmp_path / "nope.pth", 18)
     path, state = _fake_imagenet_file(tmp_path)
     bad = dict(state)
     del bad["layer2.0.downsample.0.weight"]
     bad["head.weight"] = torch.zeros(1)
     torch.save(bad, tmp_path / "bad.pth")
     with pytest.raises(ValueError, match=r"bad\.pth.*missing.*layer2\.0\.downsample\.0\.weight"):
-        load_imagenet_resnet18(tmp_path / "bad.pth")
+        load_imagenet_resnet(tmp_path / "bad.pth", 18)
     wrong = dict(state)
     wrong["layer1.0.conv1.weight"] = torch.zeros(64, 64, 1, 1)
     torch.save(wrong, tmp_path / "wrong.pth")
     with pytest.raises(ValueError, match="layer1.0.conv1.weight has shape"):
-        load_imagenet_resnet18(tmp_path / "wrong.pth")
+        load_imagenet_resnet(tmp_path / "wrong.pth", 18)
     (tmp_path / "text.pth").write_text("not a checkpoint")
     with pytest.raises(ValueError, match="text.pth"):
-        load_imagenet_resnet18(tmp_path / "text.pth")
+        load_imagenet_resnet(tmp_path / "text.pth", 18)
 
 
 def test_random_init_is_torchvision_style():

@@ -23,7 +23,6 @@ from f2depth.flow.finetune import FinetuneConfig
 from f2depth.flow.finetune_data import FlowPairs
 from f2depth.flow.pretrain import PretrainConfig, pretrain
 from f2depth.keypoints import KeypointFile
-from f2depth.losses import LossWeights
 from f2depth.train.data import DataConfig, TupleDataset
 from f2depth.train.loop import LoopConfig, fit, seed_everything
 from f2depth.train.schedule import LRSchedule
@@ -134,7 +133,8 @@ def run_depth(tmp: Path, calls, monkeypatch) -> dict:
     nan_on(net, calls)
     seed_everything(7)
     config = LoopConfig(1, 2, LRSchedule.scaled([1e-4], [1], 1), seed=7, progress=False)
-    return fit(DepthModel(DepthModelConfig(64, 64)), data, FlowTeacher(net), StepConfig(LossWeights(), 40),
+    step = StepConfig(train_fakes.WEIGHTS, 40)
+    return fit(DepthModel(DepthModelConfig(64, 64)), data, FlowTeacher(net), step,
                config, checkpoint=tmp / "resume.pt", fingerprint="x").history[-1]
 
 

@@ -9,11 +9,10 @@ from f2depth.flow.augment import (
     AugmentConfig,
     augment_batch,
     color_jitter,
-    hflip_flow,
     hflip_keypoints,
 )
 from f2depth.flow.patch_loss import FinetuneLossConfig, finetune_loss, pad_keypoints
-from f2depth.flow.warp import warp
+from f2depth.geometry import warp
 
 
 def rand_img(b=2, h=12, w=16, seed=0):
@@ -29,6 +28,13 @@ def test_jitter_shares_parameters_between_frames_and_is_seeded():
     assert a1.min() >= 0 and a1.max() <= 1
     same, _ = color_jitter([img, img], torch.Generator().manual_seed(3), AugmentConfig(color_p=0.0))
     assert torch.equal(same, img)
+
+
+def hflip_flow(flow: torch.Tensor) -> torch.Tensor:
+    """Flow ``(B,2,H,W)`` of a pair → the flow of the mirrored pair: mirrored, u negated."""
+    out = flow.flip(-1).clone()
+    out[:, 0] = -out[:, 0]
+    return out
 
 
 def test_flip_keeps_the_loss_of_a_consistent_pair():

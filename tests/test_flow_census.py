@@ -1,4 +1,4 @@
-"""ARFlow's ternary census distance (f2depth.flow.census) and the warp (f2depth.flow.warp)."""
+"""ARFlow's ternary census distance (f2depth.flow.census) and the warp (f2depth.geometry.warp)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 import torch
 
-from f2depth.flow import census_distance, warp
+from f2depth.flow.census import census_distance
+from f2depth.geometry import warp
 
 REF = Path(__file__).resolve().parents[2] / "shared" / "data" / "arflow_reference" / "pwclite_seed0_io.npz"
 

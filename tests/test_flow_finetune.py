@@ -244,7 +244,7 @@ def test_stages_write_their_outputs(prepared, tmp_path, monkeypatch):
     torch.manual_seed(0)
     save_flow_model(tmp_path / "models" / "flow_pretrained.pt", PWCLite())
     params = {
-        "seed": 0, "device": "cpu", "lambda_flow_smooth": 50, "allow_random_init": True,
+        "seed": 0, "device": "cpu", "loss_weights": {"flow_smooth": 50}, "allow_random_init": True,
         "flow_pretrain": {"checkpoint": None},
         "data": {"prepared": "data/prepared", "keypoints": "data/keypoints"},
         "flow_finetune": {"losses": ["patch", "full"], "epochs": 1, "batch_size": 6, "lr": 5e-5,

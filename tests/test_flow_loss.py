@@ -23,7 +23,7 @@ from f2depth.flow.loss import (
     smoothness,
     ssim_loss,
 )
-from f2depth.flow.warp import warp
+from f2depth.geometry import warp
 
 REF = Path(__file__).resolve().parents[2] / "shared" / "data" / "arflow_reference" / "arflow_loss_seed0.npz"
 

@@ -21,7 +21,7 @@ from f2depth.flow.patch_loss import (
     patch_offsets,
     patch_pixels,
 )
-from f2depth.flow.warp import warp
+from f2depth.geometry import warp
 
 H, W = 40, 56
 

@@ -3,6 +3,7 @@ tiny Sintel-layout set made in tmp_path."""
 
 from __future__ import annotations
 
+import csv
 import importlib.util
 import json
 import math
@@ -17,7 +18,7 @@ import yaml
 from f2depth.data.sintel import list_pairs, write_flo
 from f2depth.epochs import load_state
 from f2depth.flow import FlowNetwork, PWCLite, load_flow_model
-from f2depth.flow.pretrain import PretrainConfig, clear_resume, pretrain, run_fingerprint
+from f2depth.flow.pretrain import HISTORY_COLUMNS, PretrainConfig, clear_resume, pretrain, run_fingerprint
 from f2depth.flow.validate import evaluate_sintel
 from f2depth.params import ParamsError
 
@@ -167,6 +168,9 @@ def test_stage_end_to_end(tmp_path, monkeypatch):
         assert set(metrics[key]["model"]) >= {"epe_all", "epe_noc", "epe_low_texture", "magnitude_ratio",
                                               "cosine"}
     assert len(metrics["training"]["history"]) == 2
+    history = list(csv.DictReader((tmp_path / "metrics" / "flow_pretrain" / "history.csv").open()))
+    assert [int(r["epoch"]) for r in history] == [1, 2] and list(history[0]) == list(HISTORY_COLUMNS)
+    assert float(history[1]["loss"]) == pytest.approx(metrics["training"]["history"][1]["loss"], rel=1e-5)
     model = load_flow_model(tmp_path / "models" / "flow_pretrained.pt")
     assert isinstance(model, PWCLite)
     assert len(list((tmp_path / "reports" / "flow").glob("*.png"))) == 2
@@ -180,6 +184,8 @@ def test_stage_imports_an_arflow_checkpoint(tmp_path, monkeypatch):
     metrics = run_stage(tmp_path, monkeypatch, checkpoint="arflow.pth.tar", init="pytorch", holdout=2,
                         passes=["clean"], eval_prepared_pairs=None, figures=0)
     assert metrics["source"] == "arflow" and "training" not in metrics
+    header = (tmp_path / "metrics" / "flow_pretrain" / "history.csv").read_text()
+    assert header == ",".join(HISTORY_COLUMNS) + "\n"  # imported: no training epochs
     assert metrics["heldout_sequences"] == ["b_1", "c_1"] and metrics["heldout_clean"]["pairs"] == 4
     loaded = load_flow_model(tmp_path / "models" / "flow_pretrained.pt")
     assert all(torch.equal(v, loaded.state_dict()[k]) for k, v in ref.state_dict().items())

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 import torch
 
-from f2depth.flow import PWCLite, correlation, load_flow_model
+from f2depth.flow import PWCLite, load_flow_model
+from f2depth.flow.correlation import correlation
 from f2depth.flow.network import msra_init
 
 REF_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "arflow_reference"

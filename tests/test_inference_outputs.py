@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import cv2
 import fakes
+import inference_data
 import numpy as np
 import pytest
 
@@ -13,7 +14,6 @@ from f2depth.inference.outputs import (
     default_intrinsics,
     depth_to_mm,
     intrinsics,
-    read_ply_points,
     write_frame,
 )
 
@@ -69,7 +69,7 @@ def test_ply_points_back_project_to_the_input_pixels(tmp_path):
     K = np.array([[50.0, 0.0, 18.3], [0.0, 55.0, 16.1], [0.0, 0.0, 1.0]])
     paths = write_frame(tmp_path, "f", depth, rgb, K)
     assert paths[-1].name == "f" + SUFFIXES["ply"]
-    points, colours = read_ply_points(paths[-1])
+    points, colours = inference_data.read_ply_points(paths[-1])
     assert points.shape == (h * w - 1, 3) and colours.shape == (h * w - 1, 3)
     uv = (K @ points.T.astype(np.float64)).T
     uv = uv[:, :2] / uv[:, 2:]

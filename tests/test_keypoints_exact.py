@@ -10,7 +10,8 @@ import cv2
 import numpy as np
 import pytest
 
-from f2depth.keypoints import KeypointSelector, select_pixels, select_raw
+from f2depth.keypoints import KeypointSelector, select_pixels
+from f2depth.keypoints.select import prepare, select
 
 REFERENCE = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "dso_reference"
 CASES = ["case1_rects_640x480", "case2_edges_640x480", "case4_texture_640x480"]
@@ -40,7 +41,7 @@ def test_reference_cases_present():
                          [("raw_pot1", 1, True), ("raw_pot3", 3, True), ("raw_pot3_nodir", 3, False)])
 def test_select_raw_equals_reference(case, mode, pot, direction):
     reference, info = _reference(case, mode)
-    points = select_raw(_image(case), pot, direction=direction)
+    points = select(prepare(_image(case), direction=direction), pot)[0]
     assert points.shape == reference.shape
     np.testing.assert_array_equal(points, reference)
     counts = np.bincount(points[:, 2], minlength=3)

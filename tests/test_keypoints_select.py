@@ -6,9 +6,21 @@ import cv2
 import numpy as np
 import pytest
 
-from f2depth.keypoints import KeypointSelector, select_pixels, select_raw
+from f2depth.keypoints import KeypointSelector, select_pixels
 from f2depth.keypoints.makemaps import ideal_potential, make_maps
-from f2depth.keypoints.select import DIRECTIONS, direction_zero_mask, prepare, select, valid_region
+from f2depth.keypoints.select import DIRECTIONS, direction_zero_mask, prepare, select, valid_box
+
+
+def valid_region(height: int, width: int) -> np.ndarray:
+    """The valid pixels of DSO's select() (:func:`valid_box`) as a (h, w) bool mask."""
+    valid = np.zeros((height, width), bool)
+    valid[valid_box(height, width)] = True
+    return valid
+
+
+def select_raw(gray: np.ndarray, pot: int, direction: bool = True) -> np.ndarray:
+    """DSO's select() alone at cell size ``pot``: no adaptation, no thinning; (N, 3) x, y, level."""
+    return select(prepare(gray, direction=direction), int(pot))[0]
 
 
 def random_image(seed: int, hw=(192, 256)) -> np.ndarray:

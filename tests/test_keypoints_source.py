@@ -127,7 +127,7 @@ def test_workers_and_sequence_give_the_same_points(tmp_path):
     extract_keypoints(prepared, tmp_path / "a.npz", None, "dso", {"density": 400}, workers=1, **kw)
     extract_keypoints(prepared, tmp_path / "b.npz", None, "dso", {"density": 400}, workers=2, **kw)
     a, b = KeypointFile(tmp_path / "a.npz"), KeypointFile(tmp_path / "b.npz")
-    assert all(np.array_equal(a.points(i), b.points(i)) for i in range(5)) and a.counts().sum() > 0
+    assert all(np.array_equal(a.points(i), b.points(i)) for i in range(5)) and a.offsets[-1] > 0
     seq = extract_keypoints(prepared, tmp_path / "s.npz", None, "dso", {"density": 400}, sequence=True, **kw)
     s = KeypointFile(tmp_path / "s.npz")
     assert seq["sequence"] is True

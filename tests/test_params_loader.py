@@ -20,6 +20,7 @@ import yaml
 from f2depth import params as P
 from f2depth import profile
 from f2depth.train.settings import settings_from_params
+from f2depth.train.step import TERMS
 
 ROOT = Path(__file__).resolve().parents[1]
 STAGES = ("synth", "poses", "keypoints", "prepare", "flow_pretrain", "flow_finetune", "flow_figure",
@@ -51,7 +52,7 @@ class Section:
 
 
 def good() -> dict:
-    return {"_file": "p.yaml", "lambda3": 3.0, "device": "cpu",
+    return {"_file": "p.yaml", "weight": 3.0, "device": "cpu",
             "s": {"epochs": 2, "lr": 1.0e-4, "augment": False, "mode": "b", "weights": [1, 0.5],
                   "size": [2, 3], "path": None, "inner": {"count": 4, "scale": 2}, "init_depth": None}}
 
@@ -113,12 +114,32 @@ def test_unknown_and_missing_keys():
     assert error(good(), "t") == "p.yaml: missing parameter 't'"
 
 
+def test_a_given_field_is_no_key_of_the_section():
+    """Values resolved elsewhere (``given``) are fields of the dataclass, not keys the section may hold."""
+    p = good()
+    del p["s"]["path"]
+    assert P.section(p, "s", Section, path="x").path == "x"
+    p["s"]["path"] = "y"
+    with pytest.raises(P.ParamsError, match=r"^p.yaml: s: unknown keys \['path'\]"):
+        P.section(p, "s", Section, path="x")
+
+
+def test_reject_unknown_names_keys_or_entries_with_a_hint():
+    P.reject_unknown("p.yaml", "w", {"smooth": 1}, ("smooth", "planar"))
+    with pytest.raises(P.ParamsError) as info:
+        P.reject_unknown("p.yaml", "w", {"smoth": 1, "zzz": 2}, ("smooth", "planar"))
+    assert str(info.value) == "p.yaml: w: unknown keys ['smoth', 'zzz']; w.smoth: did you mean smooth?"
+    with pytest.raises(P.ParamsError) as info:
+        P.reject_unknown("p.yaml", "v.without", ["zzz"], ("smooth", "planar"), what="terms")
+    assert str(info.value) == "p.yaml: v.without: unknown terms ['zzz']; known: planar, smooth"
+
+
 def test_value_and_device():
-    assert P.value(good(), "lambda3", float, min=0) == 3.0
-    for bad, expected in (("abc", "p.yaml: lambda3 is 'abc'; set it to a finite number"),
-                          (-1, "p.yaml: lambda3 is -1.0; set it to a value >= 0")):
+    assert P.value(good(), "weight", float, min=0) == 3.0
+    for bad, expected in (("abc", "p.yaml: weight is 'abc'; set it to a finite number"),
+                          (-1, "p.yaml: weight is -1.0; set it to a value >= 0")):
         with pytest.raises(P.ParamsError) as info:
-            P.value({**good(), "lambda3": bad}, "lambda3", float, min=0)
+            P.value({**good(), "weight": bad}, "weight", float, min=0)
         assert str(info.value) == expected
     assert P.device(good()) == "cpu"
     for bad in ("foo", "cuda:x", "gpu"):
@@ -142,8 +163,7 @@ def configs(params: dict) -> dict:
 
 
 @pytest.mark.parametrize("name", [None, *profile.load_profiles(ROOT / "configs" / "profiles.yaml")])
-def test_every_migrated_stage_builds_its_config_from_params_and_each_profile(tmp_path, monkeypatch, name):
-    monkeypatch.chdir(ROOT)  # variants read configs/ablation_off.yaml relative to the repository
+def test_every_migrated_stage_builds_its_config_from_params_and_each_profile(tmp_path, name):
     path = tmp_path / "params.yaml"
     shutil.copy(ROOT / "params.yaml", path)
     if name:
@@ -156,7 +176,7 @@ def test_every_migrated_stage_builds_its_config_from_params_and_each_profile(tmp
     finetune = cfg["flow_finetune_patch"][0]
     assert finetune.epochs == params["flow_finetune"]["epochs"] and finetune.loss == "patch"
     assert finetune.w_scales == tuple(params["flow_finetune"]["w_scales"])
-    assert finetune.smooth_weight == params["lambda_flow_smooth"]
+    assert finetune.smooth_weight == params["loss_weights"]["flow_smooth"]
     assert cfg["evaluate"][0].timing_repeats == params["evaluate"]["timing_repeats"]
     assert cfg["keypoints"].preset == params["keypoints"]["preset"]
     assert cfg["synth"].campus_hw == (params["synth"]["campus"]["height"], params["synth"]["campus"]["width"])
@@ -166,6 +186,8 @@ def test_every_migrated_stage_builds_its_config_from_params_and_each_profile(tmp
         assert settings.epochs == params["train_depth"]["epochs"]
         assert settings.lr == tuple(params["train_depth"]["lr"])
         assert settings.init_depth == params["train_depth"]["init_depth"]
+        assert settings.weights == {term: 0.0 if term in params["variants"][variant]["without"]
+                                    else params["loss_weights"][term] for term in TERMS}
 
 
 @pytest.mark.parametrize("stage, dotted, bad, expected", [
@@ -209,9 +231,12 @@ def test_a_stage_given_a_bad_value_prints_one_line_and_touches_nothing(tmp_path)
 
 
 @pytest.mark.parametrize("dotted, bad, expected", [
-    ("lambda3", "abc", "params.yaml: lambda3 is 'abc'; set it to a finite number"),
-    ("lambda3", -1, "params.yaml: lambda3 is -1.0; set it to a value >= 0"),
-    ("lambda1", None, "params.yaml: lambda1 is None; set it to a finite number"),
+    ("loss_weights.feature", "abc", "params.yaml: loss_weights.feature is 'abc'; set it to a finite number"),
+    ("loss_weights.feature", -1, "params.yaml: loss_weights.feature is -1.0; set it to a value >= 0"),
+    ("loss_weights.smooth", None, "params.yaml: loss_weights.smooth is None; set it to a finite number"),
+    ("loss_weights.featur", 0, "params.yaml: loss_weights: unknown keys ['featur']; loss_weights.featur: "
+                               "did you mean feature?"),
+    ("variants.full.without", ["featur"], "params.yaml: variants.full.without: unknown terms ['featur']"),
     ("train_depth.epochs", 0, "params.yaml: train_depth.epochs is 0; set it to a value >= 1"),
     ("train_depth.augment", "false", "params.yaml: train_depth.augment is 'false'; set it to true or false"),
     ("train_depth.init_dpeth", 2.0, "params.yaml: train_depth: unknown keys ['init_dpeth']; "
@@ -220,8 +245,8 @@ def test_a_stage_given_a_bad_value_prints_one_line_and_touches_nothing(tmp_path)
     ("device", "foo", "params.yaml: device is 'foo'; set it to cpu, cuda, cuda:N or auto"),
 ])  # fmt: skip
 def test_train_depth_settings_reject_bad_values(dotted, bad, expected):
-    """The failures of params.yaml without a schema: a bare ValueError for lambda3: "abc", lambda3: -1 and
-    epochs: 0 accepted, augment: "false" counted as true, a typo in an optional key silently ignored."""
+    """The failures of params.yaml without a schema: a bare ValueError for a loss weight "abc", a weight of -1
+    and epochs: 0 accepted, augment: "false" counted as true, a typo in an optional key silently ignored."""
     params = P.load(ROOT / "params.yaml")
     params["_file"] = "params.yaml"
     node = params

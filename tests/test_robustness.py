@@ -400,6 +400,6 @@ def test_missing_flow_model_names_the_variant_key(tmp_path):
                                              tmp_path / "splits.mat", missing))
     settings = settings_from_params(params, "full")
     with pytest.raises(DataError, match=r"flow_patch\.pt: flow model not found \(variants\.full\."
-                                        r"flow_model\); `dvc repro train_depth@full` builds it first"):
+                                        r"flow\); `dvc repro train_depth@full` builds it first"):
         train_variant(settings, tmp_path / "out", tmp_path / "m.json", tmp_path / "h.csv", progress=False)
     assert not (tmp_path / "out").exists()

@@ -65,7 +65,7 @@ def tree(tmp_path, monkeypatch):
         "data": {"nyu_labeled": str(mat), "nyu_splits": str(splits), "sevenscenes": str(tmp_path / "7scenes"),
                  "campus": str(tmp_path / "campus")},
         "train_depth": {"seeds": [0, 1]},
-        "variants": {"full": {"flow_model": None}},
+        "variants": {"full": {"flow": None, "without": ["rigid", "feature"]}},
         "evaluate": {"nyu_gt": "depths", "nyu_crop": "eigen", "sevenscenes_stride": 1,
                      "datasets": ["nyu", "sevenscenes", "campus"], "height": None, "width": None,
                      "interpolation": "area", "upsample": "nearest", "decoder_upsample": "bilinear",
@@ -138,7 +138,7 @@ def test_constant_model_on_constant_depth_is_perfect_through_the_stage(tree):
 def test_decoder_upsample_is_applied_and_recorded_with_the_training_weights(tree):
     """evaluate.decoder_upsample rebuilds the decoder (bilinear ×2 upsampling, as P²Net's NYU evaluation)
     and the metrics record it with the loss weights the checkpoint was trained with (Table 5's marks)."""
-    weights = {"lambda1": 0.001, "lambda2": 0.05, "lambda_rigid": 1.0, "lambda3": 0.0}
+    weights = {"smooth": 0.001, "planar": 0.05, "rigid": 1.0, "feature": 0.0}
     write_model(tree / "models" / "depth_full" / "seed0.pt", 0,
                 params={"weights": weights, "flow_model": "models/flow_patch.pt", "epochs": 2})
     params = yaml.safe_load((tree / "params.yaml").read_text())

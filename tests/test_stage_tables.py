@@ -47,11 +47,11 @@ def seed_details(base: float) -> dict:
 
 #: The loss weights each variant's model was trained with (what evaluate records as ``trained_with``).
 WEIGHTS = {
-    "full": {"lambda1": 0.001, "lambda2": 0.05, "lambda_rigid": 1.0, "lambda3": 3.0},
-    "no_feature": {"lambda1": 0.001, "lambda2": 0.05, "lambda_rigid": 1.0, "lambda3": 0.0},
-    "baseline": {"lambda1": 0.001, "lambda2": 0.05, "lambda_rigid": 0.0, "lambda3": 0.0},
-    "flow_pretrained": {"lambda1": 0.001, "lambda2": 0.05, "lambda_rigid": 1.0, "lambda3": 3.0},
-    "flow_full_ft": {"lambda1": 0.001, "lambda2": 0.05, "lambda_rigid": 1.0, "lambda3": 3.0},
+    "full": {"smooth": 0.001, "planar": 0.05, "rigid": 1.0, "feature": 3.0},
+    "no_feature": {"smooth": 0.001, "planar": 0.05, "rigid": 1.0, "feature": 0.0},
+    "baseline": {"smooth": 0.001, "planar": 0.05, "rigid": 0.0, "feature": 0.0},
+    "flow_pretrained": {"smooth": 0.001, "planar": 0.05, "rigid": 1.0, "feature": 3.0},
+    "flow_full_ft": {"smooth": 0.001, "planar": 0.05, "rigid": 1.0, "feature": 3.0},
 }
 
 
@@ -95,10 +95,11 @@ def write_inputs(root: Path, weights: dict[str, dict[str, float]] = WEIGHTS) -> 
             f"epoch,loss,epe_all,epe_low_texture\n0,,4.0,6.0\n1,0.5,{ft},{ft + 1}\n")
     params = {
         "variants": {
-            "full": {"flow_model": "models/flow_patch.pt"},
-            "no_feature": {"flow_model": "models/flow_patch.pt"},
-            "baseline": {"flow_model": None}, "flow_pretrained": {"flow_model": "models/flow_pretrained.pt"},
-            "flow_full_ft": {"flow_model": "models/flow_full.pt"}},
+            "full": {"flow": "models/flow_patch.pt", "without": []},
+            "no_feature": {"flow": "models/flow_patch.pt", "without": ["feature"]},
+            "baseline": {"flow": None, "without": ["rigid", "feature"]},
+            "flow_pretrained": {"flow": "models/flow_pretrained.pt", "without": []},
+            "flow_full_ft": {"flow": "models/flow_full.pt", "without": []}},
         "flow_finetune": {"losses": ["patch", "full"], "out_dir": str(flow),
                           "pretrained": "models/flow_pretrained.pt", "model": "models/flow_{loss}.pt"},
         "evaluate": {"nyu_gt": "depths"},
@@ -182,10 +183,11 @@ def test_table5_losses_ablation(reports):
 
 
 def test_table5_marks_come_from_the_weights_each_run_recorded(tmp_path, monkeypatch):
-    """What `dvc exp run -S lambda3=0` produces: `full` retrained with λ3 = 0 must be marked L_feature ×
-    (the marks are not the variants' intended roles); a run whose metrics carry no weights gets no mark."""
+    """What `dvc exp run -S loss_weights.feature=0` produces: `full` retrained with λ3 = 0 must be marked
+    L_feature × (the marks are not the variants' intended roles); a run whose metrics carry no weights gets
+    no mark."""
     monkeypatch.setenv("F2DEPTH_MLFLOW", "0")
-    weights = {**WEIGHTS, "full": {**WEIGHTS["full"], "lambda3": 0.0},
+    weights = {**WEIGHTS, "full": {**WEIGHTS["full"], "feature": 0.0},
                "baseline": {}}  # metrics written before the weights were recorded
     write_inputs(tmp_path, weights)
     rows = read_csv(run(tmp_path) / "tables" / "table5_losses.csv")

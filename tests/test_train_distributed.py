@@ -18,7 +18,6 @@ import train_fakes
 
 from f2depth.depth import DepthModel, DepthModelConfig
 from f2depth.flow import PWCLite
-from f2depth.losses import LossWeights
 from f2depth.train.data import DataConfig, TupleDataset
 from f2depth.train.distributed import DistContext, cleanup, init_from_env
 from f2depth.train.loop import LoopConfig, fit, seed_everything
@@ -38,7 +37,7 @@ def _train(root: str, ctx: DistContext):
     seed_everything(SEED)
     model = DepthModel(DepthModelConfig(64, 64))
     config = LoopConfig(1, 4, LRSchedule.scaled([1e-4], [1], 1), seed=SEED, progress=False)
-    result = fit(model, ds, teacher, StepConfig(LossWeights(), min_area=40), config, ctx=ctx)
+    result = fit(model, ds, teacher, StepConfig(train_fakes.WEIGHTS, min_area=40), config, ctx=ctx)
     return model, result
 
 
@@ -69,7 +68,7 @@ def test_two_processes_match_one(tmp_path):
     model, result = _train(str(tmp_path), DistContext())
     one = result.history[-1]
     two = ddp["history"][-1]
-    for term in ("ph", "sm", "spp", "rigid", "feature", "total"):
+    for term in ("ph", "smooth", "planar", "rigid", "feature", "total"):
         assert two[term] == pytest.approx(one[term], rel=1e-4, abs=1e-7), term
     seed_everything(SEED)
     start = dict(DepthModel(DepthModelConfig(64, 64)).named_parameters())

@@ -10,7 +10,6 @@ from f2depth import epochs as ckpt
 from f2depth.depth import DepthModel, DepthModelConfig
 from f2depth.epochs import NonFiniteEpochError, history_csv
 from f2depth.flow import PWCLite
-from f2depth.losses import LossWeights
 from f2depth.train.data import DataConfig, TupleDataset
 from f2depth.train.loop import HISTORY_COLUMNS, LoopConfig, fit, seed_everything
 from f2depth.train.schedule import LRSchedule
@@ -20,7 +19,7 @@ from f2depth.train.teacher import FlowTeacher
 EPOCHS = 2
 CONFIG = LoopConfig(EPOCHS, 2, LRSchedule.scaled([1e-4, 1e-5, 1e-6], [27, 15, 2], EPOCHS), seed=7,
                     progress=False)
-STEP = StepConfig(LossWeights(lambda3=0.0, lambda_rigid=0.0), min_area=40)
+STEP = StepConfig({**train_fakes.WEIGHTS, "feature": 0.0, "rigid": 0.0}, min_area=40)
 
 
 class Killed(Exception):
@@ -88,6 +87,25 @@ def test_other_fingerprint_starts_afresh(dataset, tmp_path):
     assert off.resumed_from == 0 and off.resume_note == "resume disabled"
 
 
+def test_val_every_measures_before_training_every_nth_epoch_and_after_the_last(dataset, tmp_path):
+    calls = []
+
+    def counting_validate(model):
+        calls.append(model)
+        return fake_validate(model)
+
+    cfg = LoopConfig(5, 2, LRSchedule.scaled([1e-4], [1], 5), seed=7, progress=False, val_every=2)
+    assert [cfg.validates_after(e) for e in range(6)] == [True, False, True, False, True, True]
+    result = fit(new_model(), dataset, None, STEP, cfg, checkpoint=tmp_path / "v.pt", fingerprint="v",
+                 validate=counting_validate)
+    measured = [r["epoch"] for r in result.history if "val_a1" in r]
+    assert measured == [0, 2, 4, 5] and len(calls) == 4
+    assert [r["epoch"] for r in result.history] == [0, 1, 2, 3, 4, 5]  # every epoch keeps its loss row
+    assert all("total" in r for r in result.history[1:])
+    with pytest.raises(ValueError, match="val_every"):
+        LoopConfig(5, 2, LRSchedule.scaled([1e-4], [1], 5), val_every=0)
+
+
 def test_all_non_finite_epoch_stops_the_loop_naming_the_term(dataset, tmp_path):
     torch.manual_seed(0)
     broken = PWCLite()
@@ -95,7 +113,7 @@ def test_all_non_finite_epoch_stops_the_loop_naming_the_term(dataset, tmp_path):
         broken.flow_estimators.predict_flow[0].weight.fill_(float("nan"))
     with pytest.raises(NonFiniteEpochError, match=r"^train_depth: all 2 steps of epoch 1 had a non-finite "
                        r"loss \(last: loss term 'rigid' is nan \(epoch 1, step 1\)"):
-        fit(new_model(), dataset, FlowTeacher(broken), StepConfig(LossWeights(), min_area=40), CONFIG,
+        fit(new_model(), dataset, FlowTeacher(broken), StepConfig(train_fakes.WEIGHTS, min_area=40), CONFIG,
             checkpoint=tmp_path / "n.pt", fingerprint="nan")
     assert not (tmp_path / "n.pt").exists()  # nothing written for the failed epoch
 

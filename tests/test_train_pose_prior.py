@@ -16,7 +16,6 @@ from f2depth import params as P
 from f2depth.data.prepared import PreparedSet
 from f2depth.depth import DepthModel, DepthModelConfig
 from f2depth.geometry import invert_pose, pose_from_params
-from f2depth.losses import LossWeights
 from f2depth.poses.estimate import PairPrior, PosesConfig, ScenePoses
 from f2depth.poses.store import PosePriors, write_poses
 from f2depth.train import augment as A
@@ -156,7 +155,7 @@ def test_a_batch_mixing_reliable_and_missing_priors_gives_a_finite_loss_and_grad
     batch = batch_to(torch.utils.data.default_collate([ds.item(i, 0) for i in range(len(ds))]), "cpu")
     assert batch["prior_prev_ok"].any() and not batch["prior_prev_ok"].all()
     model = DepthModel(DepthModelConfig(height=64, width=64))
-    config = StepConfig(LossWeights(0.001, 0.05, 0.0, 0.0), min_area=10.0)
+    config = StepConfig({**train_fakes.WEIGHTS, "rigid": 0.0, "feature": 0.0}, min_area=10.0)
     loss, logs = compute_loss(model, batch, None, config)
     loss.backward()
     assert math.isfinite(logs["total"])

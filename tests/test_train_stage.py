@@ -15,6 +15,7 @@ import yaml
 from f2depth import params as P
 from f2depth.depth import load_checkpoint, read_checkpoint
 from f2depth.train.settings import settings_from_params
+from f2depth.train.step import TERMS
 
 STAGE = Path(__file__).resolve().parents[1] / "stages" / "train_depth.py"
 
@@ -37,33 +38,50 @@ def setup(tmp_path):
     return tmp_path, train_fakes.write_params(tmp_path, prep, mat, splits, flow, epochs=1, seeds=[3, 1])
 
 
-def test_variant_lambdas_come_from_the_named_files(setup):
+def test_variant_weights_are_loss_weights_with_the_terms_it_is_without_at_zero(setup):
     _, path = setup
     p = P.load(path)
     full, nof, base = (settings_from_params(p, v) for v in ("full", "no_feature", "baseline"))
-    assert (full.weights.lambda3, full.weights.lambda_rigid) == (3.0, 1.0)
-    assert (nof.weights.lambda3, nof.weights.lambda_rigid) == (0.0, 1.0)
-    assert (base.weights.lambda3, base.weights.lambda_rigid, base.flow_model) == (0.0, 0.0, None)
-    assert full.weights.lambda1 == base.weights.lambda1 == 0.001 and full.seeds == (3, 1)
-    p["lambda3"] = 0.5  # what `dvc exp run -S lambda3=0.5` changes: only the variants reading params.yaml
-    assert settings_from_params(p, "full").weights.lambda3 == 0.5
-    assert settings_from_params(p, "no_feature").weights.lambda3 == 0.0
+    assert full.weights == train_fakes.WEIGHTS and full.weights["feature"] == 3.0
+    assert list(full.weights) == list(TERMS)  # every term of L_depth by name, flow_smooth is none
+    assert nof.weights == {**full.weights, "feature": 0.0} and nof.without == ("feature",)
+    assert base.weights == {**full.weights, "rigid": 0.0, "feature": 0.0} and base.flow_model is None
+    assert full.flow_model.endswith("flow.pt") and full.without == () and full.seeds == (3, 1)
+    p["loss_weights"]["feature"] = 0.5  # what `dvc exp run -S loss_weights.feature=0.5` changes
+    assert settings_from_params(p, "full").weights["feature"] == 0.5
+    assert settings_from_params(p, "no_feature").weights["feature"] == 0.0  # its switched-off term stays off
+    p["loss_weights"]["smooth"] = 0.01
+    assert settings_from_params(p, "baseline").weights == {**base.weights, "smooth": 0.01}
 
 
-def test_variant_errors(setup):
+@pytest.mark.parametrize("variant, edit, expected", [
+    ("full", lambda p: p["variants"].pop("full"),
+     "unknown variant 'full'; variants: ['baseline', 'no_feature']"),
+    ("full", lambda p: p["variants"]["full"].update(without=["featur"]),
+     "variants.full.without: unknown terms ['featur']; 'featur': did you mean feature?"),
+    ("full", lambda p: p["variants"]["full"].update(without=["flow_smooth"]),
+     "variants.full.without: unknown terms ['flow_smooth']; 'flow_smooth': did you mean smooth?"),
+    ("baseline", lambda p: p["variants"]["baseline"].update(without=["feature"]),
+     "variants.baseline has no flow network (flow: null) but leaves rigid on; add it to "
+     "variants.baseline.without or give it a flow model"),
+    ("full", lambda p: p["variants"]["full"].update(flow=None),
+     "variants.full has no flow network (flow: null) but leaves rigid, feature on; add them to"),
+    ("full", lambda p: p["variants"]["full"].update(flow_model="models/x.pt"),
+     "variants.full: unknown keys ['flow_model']; known: flow, without"),
+    ("full", lambda p: p["variants"]["full"].pop("without"), "missing parameter 'variants.full.without'"),
+    ("baseline", lambda p: p["loss_weights"].update(featur=0.0),
+     "loss_weights: unknown keys ['featur']; loss_weights.featur: did you mean feature?"),
+    ("baseline", lambda p: p["loss_weights"].pop("planar"), "missing parameter 'loss_weights.planar'"),
+    ("baseline", lambda p: p["loss_weights"].update(rigid=-1),
+     "loss_weights.rigid is -1.0; set it to a value >= 0"),  # checked even where the term is off
+])  # fmt: skip
+def test_variant_errors_are_one_line_naming_the_key(setup, variant, edit, expected):
     _, path = setup
     p = P.load(path)
-    with pytest.raises(P.ParamsError, match="unknown variant 'nope'"):
-        settings_from_params(p, "nope")
-    p["variants"]["full"]["dep_flow_model"] = "models/other.pt"
-    with pytest.raises(P.ParamsError, match="dep_flow_model is 'models/other.pt' but flow_model"):
-        settings_from_params(p, "full")
-    p["variants"]["baseline"]["rigid_from"] = "params.yaml"
-    with pytest.raises(P.ParamsError, match="has no flow_model but lambda_rigid=1.0"):
-        settings_from_params(p, "baseline")
-    p["variants"]["no_feature"]["feature_from"] = "missing.yaml"
-    with pytest.raises(P.ParamsError, match="reads lambda3 from missing.yaml, which does not exist"):
-        settings_from_params(p, "no_feature")
+    edit(p)
+    with pytest.raises(P.ParamsError) as info:
+        settings_from_params(p, variant)
+    assert str(info.value).startswith(f"{path}: {expected}") and "\n" not in str(info.value)
 
 
 def test_stage_trains_every_seed_and_writes_outputs(setup, monkeypatch):
@@ -75,13 +93,14 @@ def test_stage_trains_every_seed_and_writes_outputs(setup, monkeypatch):
     assert sorted(f.name for f in out.iterdir()) == ["model.pt", "seed1.pt", "seed3.pt"]
     assert (out / "model.pt").read_bytes() == (out / "seed3.pt").read_bytes()  # the first listed seed
     ck = read_checkpoint(out / "seed1.pt")
-    assert ck["seed"] == 1 and ck["variant"] == "full" and ck["params"]["weights"]["lambda3"] == 3.0
+    assert ck["seed"] == 1 and ck["variant"] == "full" and ck["params"]["weights"]["feature"] == 3.0
     model = load_checkpoint(out / "model.pt")
     assert model.config.height == 64
     m = json.loads((root / "metrics" / "full.json").read_text())
     assert m["seeds"] == [3, 1] and m["main_seed"] == 3 and [s["seed"] for s in m["per_seed"]] == [3, 1]
     assert m["train_tuples"] == 4 and m["steps_per_epoch"] == 2 and m["flow_model"].endswith("flow.pt")
-    assert set(m["final_losses"]) == {"ph", "sm", "spp", "rigid", "feature", "total"}
+    assert set(m["final_losses"]) == {"ph", *TERMS, "total"}
+    assert m["weights"] == train_fakes.WEIGHTS and m["without"] == []  # the effective weights, per term
     assert 0.0 <= m["val_untrained"]["a1"] <= 1.0 and 0.0 <= m["val_trained"]["a1"] <= 1.0
     with (root / "metrics" / "full" / "history.csv").open() as fh:
         rows = list(csv.DictReader(fh))
@@ -156,16 +175,22 @@ def test_stage_starts_the_depth_at_init_depth(tmp_path, monkeypatch):
     assert medians[2.0] == pytest.approx(2.0, rel=0.1)
 
 
-def test_repository_variants_are_consistent():
-    """The variants of the repository's params.yaml resolve, and dvc.yaml's train_depth stage tracks them."""
+def test_repository_variants_are_consistent_with_dvc_yaml():
+    """The variants of the repository's params.yaml resolve to the paper's ablations (Tables 5, 6), and
+    dvc.yaml's train_depth stage iterates over the same names, each tracking the flow model the variant
+    uses (the stage script where it has none)."""
     root = STAGE.parents[1]
     p = P.load(root / "params.yaml")
-    expected = {"full": (3.0, 1.0), "no_feature": (0.0, 1.0), "baseline": (0.0, 0.0),
-                "flow_pretrained": (3.0, 1.0), "flow_full_ft": (3.0, 1.0)}
-    assert set(p["variants"]) == set(expected)
-    for name, (l3, lr) in expected.items():
-        s = settings_from_params({**p, "lambda3": 3.0, "lambda_rigid": 1.0}, name)
-        assert (s.weights.lambda3, s.weights.lambda_rigid) == (l3, lr), name
+    expected = {"full": (), "no_feature": ("feature",), "baseline": ("rigid", "feature"),
+                "flow_pretrained": (), "flow_full_ft": ()}
+    assert list(p["variants"]) == list(expected)
+    for name, without in expected.items():
+        s = settings_from_params(p, name)
+        assert s.without == without, name
+        assert s.weights == {t: 0.0 if t in without else p["loss_weights"][t] for t in TERMS}, name
+        assert (s.flow_model is None) == (name == "baseline"), name
     stage = yaml.safe_load((root / "dvc.yaml").read_text())["stages"]["train_depth"]
-    assert stage["foreach"] == "${variants}" and "--variant ${key}" in stage["do"]["cmd"]
-    assert "${item.dep_flow_model}" in stage["do"]["deps"]
+    tracked = {name: v["flow"] or "stages/train_depth.py" for name, v in p["variants"].items()}
+    assert stage["foreach"] == tracked
+    assert "--variant ${key}" in stage["do"]["cmd"] and "${item}" in stage["do"]["deps"]
+    assert {"loss_weights", "variants.${key}"} <= set(stage["do"]["params"])

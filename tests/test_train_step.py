@@ -14,7 +14,7 @@ from torch.utils.data import default_collate
 from f2depth.depth import DepthModel, DepthModelConfig
 from f2depth.flow import PWCLite
 from f2depth.geometry import in_view_mask, relative_pose, rigid_flow, warp
-from f2depth.losses import LossWeights, NonFiniteLossError, rigid_flow_loss, total_loss
+from f2depth.losses import NonFiniteLossError, rigid_flow_loss, total_loss
 from f2depth.precision import amp_dtype
 from f2depth.synth.camera_path import handheld_path
 from f2depth.synth.groundtruth import occlusion
@@ -26,6 +26,8 @@ from f2depth.synth.render import render
 from f2depth.train import augment as A
 from f2depth.train.data import DataConfig, TupleDataset
 from f2depth.train.step import (
+    FLOW_TERMS,
+    TERMS,
     NetOutput,
     StepConfig,
     compute_loss,
@@ -35,6 +37,9 @@ from f2depth.train.step import (
     train_step,
 )
 from f2depth.train.teacher import FlowTeacher, TeacherOutput
+
+#: The paper's weights (params.yaml loss_weights), for the tiny set's superpixels
+STEP = StepConfig(train_fakes.WEIGHTS, min_area=10)
 
 HW = (48, 64)
 K_SYNTH = np.array([[52.0, 0.0, 36.2], [0.0, 53.0, 22.7], [0.0, 0.0, 1.0]])  # principal point off-centre
@@ -123,16 +128,17 @@ def tiny(tmp_path_factory):
 def test_terms_and_monitor_only_terms(tiny):
     torch.manual_seed(1)
     model = DepthModel(DepthModelConfig(64, 64))
-    cfg = StepConfig(LossWeights(lambda3=0.0), min_area=10)
+    cfg = StepConfig({**train_fakes.WEIGHTS, "feature": 0.0}, min_area=10)
     net = network_forward(model, tiny["batch"])
     flow = teacher_forward(tiny["teacher"], tiny["batch"], features=True)
     assert flow.flow.shape == (2, 2, 64, 64) and len(flow.feats_tgt) == 6
     assert [f.shape[1] for f in flow.feats_src] == [16, 32, 64, 96, 128, 192]
     terms = loss_terms(net, tiny["batch"], flow, cfg)
-    assert set(terms) == {"ph", "sm", "spp", "rigid", "feature"}
+    assert set(terms) == {"ph", *TERMS}  # named as their weights (params.yaml loss_weights)
     assert all(math.isfinite(float(v.detach())) for v in terms.values())
-    assert terms["rigid"].requires_grad and not terms["feature"].requires_grad  # λ3 = 0: logged only
-    assert set(loss_terms(net, tiny["batch"], None, cfg)) == {"ph", "sm", "spp"}  # baseline
+    assert terms["rigid"].requires_grad and not terms["feature"].requires_grad  # weight 0: logged only
+    baseline = loss_terms(net, tiny["batch"], None, cfg)  # no flow network: no flow terms
+    assert set(baseline) == {"ph", *TERMS} - set(FLOW_TERMS) and {"smooth", "planar"} <= set(baseline)
 
 
 def test_train_step_updates_depth_not_teacher(tiny):
@@ -142,8 +148,8 @@ def test_train_step_updates_depth_not_teacher(tiny):
     before_t = {k: v.clone() for k, v in teacher.net.state_dict().items()}
     before_m = {k: v.clone() for k, v in model.state_dict().items()}
     opt = torch.optim.Adam(model.parameters(), lr=1e-4)
-    loss, logs = train_step(model, opt, tiny["batch"], teacher, StepConfig(LossWeights(), min_area=10))
-    assert not loss.requires_grad and set(logs) == {"ph", "sm", "spp", "rigid", "feature", "total"}
+    loss, logs = train_step(model, opt, tiny["batch"], teacher, StepConfig(train_fakes.WEIGHTS, min_area=10))
+    assert not loss.requires_grad and set(logs) == {"ph", *TERMS, "total"}
     assert all(not p.requires_grad and p.grad is None for p in teacher.net.parameters())
     assert all(torch.equal(v, before_t[k]) for k, v in teacher.net.state_dict().items())
     for name in ("depth_decoder", "pose_decoder", "depth_encoder", "pose_encoder"):
@@ -161,15 +167,13 @@ def test_nan_guard_names_the_term_and_leaves_weights(tiny):
     before = {k: v.detach().clone() for k, v in model.named_parameters()}
     opt = torch.optim.Adam(model.parameters(), lr=1e-4)
     with pytest.raises(NonFiniteLossError, match=r"loss term 'rigid' is nan \(epoch 3, step 7\)") as info:
-        train_step(model, opt, tiny["batch"], FlowTeacher(broken), StepConfig(LossWeights(), min_area=10),
-                   context="epoch 3, step 7")
+        train_step(model, opt, tiny["batch"], FlowTeacher(broken), STEP, context="epoch 3, step 7")
     assert info.value.term == "rigid"
     # no update (BatchNorm running statistics of the forward pass are buffers, not weights)
     assert all(torch.equal(v, before[k]) for k, v in model.named_parameters())
     seen = []
     with pytest.raises(NonFiniteLossError):
-        train_step(model, opt, tiny["batch"], FlowTeacher(broken), StepConfig(LossWeights(), min_area=10),
-                   agree=seen.append)
+        train_step(model, opt, tiny["batch"], FlowTeacher(broken), STEP, agree=seen.append)
     assert len(seen) == 1 and seen[0].term == "rigid"  # the DDP hook sees the error before anything else
 
 
@@ -188,12 +192,12 @@ def test_mixed_precision_step_gives_the_fp32_loss(tiny):
         opt = torch.optim.Adam(model.parameters(), lr=1e-4)
         before = model.depth_decoder.dispconv.weight.detach().clone()
         _, logs = train_step(model, opt, tiny["batch"], tiny["teacher"],
-                             StepConfig(LossWeights(), min_area=10, amp=amp))
+                             StepConfig(train_fakes.WEIGHTS, min_area=10, amp=amp))
         assert not torch.equal(before, model.depth_decoder.dispconv.weight)
         results[amp] = logs
     assert dtypes == {False: torch.float32, True: amp_dtype("cpu")} and amp_dtype("cpu") == torch.bfloat16
     assert amp_dtype("cuda") == torch.float16
-    for term in ("ph", "sm", "spp", "rigid", "feature", "total"):
+    for term in ("ph", "smooth", "planar", "rigid", "feature", "total"):
         assert results[True][term] == pytest.approx(results[False][term], rel=0.02), term
     assert results[True]["total"] != results[False]["total"]  # autocast did change the arithmetic
 
@@ -201,9 +205,9 @@ def test_mixed_precision_step_gives_the_fp32_loss(tiny):
 def test_compute_loss_matches_weighted_terms(tiny):
     torch.manual_seed(4)
     model = DepthModel(DepthModelConfig(64, 64))
-    w = LossWeights(lambda1=0.01, lambda2=0.1, lambda3=2.0, lambda_rigid=0.5)
+    w = {**dict.fromkeys(TERMS, 0.0), "smooth": 0.01, "planar": 0.1, "rigid": 0.5, "feature": 2.0}
     loss, logs = compute_loss(model, tiny["batch"], tiny["teacher"], StepConfig(w, min_area=10))
-    expected = (logs["ph"] + 0.01 * logs["sm"] + 0.1 * logs["spp"] + 0.5 * logs["rigid"]
+    expected = (logs["ph"] + 0.01 * logs["smooth"] + 0.1 * logs["planar"] + 0.5 * logs["rigid"]
                 + 2.0 * logs["feature"])
     assert float(loss.detach()) == pytest.approx(expected, rel=1e-5)
     assert logs["total"] == pytest.approx(expected, rel=1e-5)
@@ -233,7 +237,7 @@ def test_depth_network_learns_a_rendered_room_from_true_pose_and_flow():
                           torch.randint(4, hw[0] - 4, (300,), generator=gen)], dim=-1).float()[None]
     batch = {"target": img0, "prev": img1, "next": img1, "K": Kt, "points": points,
              "segments": torch.zeros(1, *hw, dtype=torch.int64)}
-    cfg = StepConfig(LossWeights(lambda1=1e-3, lambda2=0.0, lambda3=0.0, lambda_rigid=1.0), min_area=10)
+    cfg = StepConfig({**dict.fromkeys(TERMS, 0.0), "smooth": 1e-3, "rigid": 1.0}, min_area=10)
     torch.manual_seed(0)
     model = DepthModel(DepthModelConfig(*hw))
     model.set_initial_depth(2.0)

@@ -3,7 +3,3 @@
 Every loader validates what it reads and raises :class:`f2depth.data.errors.DataError` naming the
 file, the problem and the fix; nothing is skipped silently.
 """
-
-from f2depth.data.errors import DataError
-
-__all__ = ["DataError"]

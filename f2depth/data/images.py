@@ -24,7 +24,6 @@ import torch
 from PIL import Image
 
 from f2depth.data.errors import DataError
-from f2depth.io import imwrite
 
 _FIX_REPLACE = "re-copy the file from the original dataset (or regenerate it with `dvc repro synth`)"
 _PNM_TOKEN = re.compile(rb"\s*(?:#[^\n]*\n\s*)*(\S+)")
@@ -71,9 +70,7 @@ def _check_pnm(path: Path, data: bytes) -> None:
     depth_bytes = 2 if rest[0] > 255 else 1
     need = pos + 1 + w * h * channels * depth_bytes  # exactly one whitespace after maxval
     if len(data) < need:
-        raise DataError(
-            path, f"truncated: {len(data)} bytes, its {w}×{h} header needs {need}", _FIX_REPLACE
-        )
+        raise DataError(path, f"truncated: {len(data)} bytes, its {w}×{h} header needs {need}", _FIX_REPLACE)
 
 
 def _check_png(path: Path, data: bytes) -> None:
@@ -176,17 +173,12 @@ def check_pixels(path: str | os.PathLike, data: bytes, max_pixels: int = MAX_PIX
                         "downscale the image (or check that the file is not damaged)")
 
 
-def check_decodable(path: str | os.PathLike, data: bytes) -> None:
-    """Before decoding ``data`` (the bytes of ``path``): complete (:func:`check_complete`) and of a
-    decodable size (:func:`check_pixels`)."""
-    check_complete(path, data)
-    check_pixels(path, data)
-
-
 def decode(path: str | os.PathLike, data: bytes, flags: int = cv2.IMREAD_COLOR) -> np.ndarray:
-    """Checked image bytes → OpenCV's array (BGR for colour); anything OpenCV refuses → DataError."""
+    """Image bytes, checked to be complete (:func:`check_complete`) and of a decodable size
+    (:func:`check_pixels`) → OpenCV's array (BGR for colour); anything OpenCV refuses → DataError."""
     p = Path(path)
-    check_decodable(p, data)
+    check_complete(p, data)
+    check_pixels(p, data)
     try:
         img = cv2.imdecode(np.frombuffer(data, np.uint8), flags)
     except cv2.error as exc:  # e.g. its own pixel limit for formats whose header is not read here
@@ -199,11 +191,8 @@ def decode(path: str | os.PathLike, data: bytes, flags: int = cv2.IMREAD_COLOR) 
 
 def _check_size(path: Path, img: np.ndarray, expect_hw: tuple[int, int] | None) -> None:
     if expect_hw is not None and tuple(img.shape[:2]) != tuple(expect_hw):
-        raise DataError(
-            path,
-            f"image is {img.shape[0]}×{img.shape[1]} (H×W), expected {expect_hw[0]}×{expect_hw[1]}",
-            "all images of this dataset must have the same size",
-        )
+        raise DataError(path, f"image is {img.shape[0]}×{img.shape[1]} (H×W), expected {expect_hw[0]}×"
+                              f"{expect_hw[1]}", "all images of this dataset must have the same size")
 
 
 def read_image(path: str | os.PathLike, expect_hw: tuple[int, int] | None = None) -> np.ndarray:
@@ -225,13 +214,9 @@ def read_png16(path: str | os.PathLike, expect_hw: tuple[int, int] | None = None
     return img
 
 
-def write_rgb(path: str | os.PathLike, rgb: np.ndarray) -> None:
-    """Write an RGB uint8 (H, W, 3) image atomically (PNG/JPEG by extension)."""
-    imwrite(path, cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
-
-
 INTERPOLATIONS = ("area", "lanczos")
-"""Filters that shrink an RGB image to the network size (``prepare.interpolation``, ``evaluate.interpolation``).
+"""Filters that shrink an RGB image to the network size (``prepare.interpolation``,
+``evaluate.interpolation``).
 
 ``area``: OpenCV's INTER_AREA (box average), anti-aliased (exact block means at integer factors).
 ``lanczos``: PIL's LANCZOS on the uint8 image, exactly what P²Net's training and NYU evaluation do

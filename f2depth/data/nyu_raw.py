@@ -37,14 +37,6 @@ class RawFrame:
         return self.path.stem
 
 
-def parse_raw_name(name: str) -> tuple[float, int]:
-    """``"r-1315244969.851995-2619100169.ppm"`` → ``(1315244969.851995, 2619100169)``."""
-    m = RAW_RGB_RE.match(name)
-    if m is None:
-        raise DataError(name, "not an NYU raw RGB frame name (expected r-<timestamp>-<n>.ppm)")
-    return float(m.group(1)), int(m.group(2))
-
-
 def _root(root: str | os.PathLike) -> Path:
     p = Path(root)
     if not p.is_dir():

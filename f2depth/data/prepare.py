@@ -19,10 +19,6 @@ is written atomically, so an interrupted run leaves the previous set untouched.
 
 from __future__ import annotations
 
-import concurrent.futures as cf
-import csv
-import io
-import multiprocessing
 import os
 import re
 import time
@@ -33,17 +29,17 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from tqdm import tqdm
 
 from f2depth.camera import NYU_RGB_DIST, NYU_RGB_K, NYU_SIZE_HW, crop_resize_intrinsics, undistort_image
 from f2depth.data.errors import DataError
-from f2depth.data.images import INTERPOLATIONS, resize_rgb, write_rgb
+from f2depth.data.images import INTERPOLATIONS, resize_rgb
 from f2depth.data.nyu_labeled import scenes_of_test_images
 from f2depth.data.nyu_raw import RawFrame, list_frames, list_scenes, read_frame
+from f2depth.data.prepared import FRAMES_HEADER, PAIRS_HEADER, TUPLES_HEADER
+from f2depth.io import atomic_dir, csv_text, imwrite, save_npz, write_json, write_rgb, write_text
 from f2depth.superpixels import MIN_AREA, scaled_min_area
-from f2depth.io import atomic_dir, imwrite, save_npz, write_json, write_text
+from f2depth.workers import map_jobs
 
-#: Superpixels larger than this many pixels take part in P²Net's planar loss (at 288×384).
 _ROOM_SUFFIX = re.compile(r"(_\d+)[a-z]$")
 
 
@@ -237,10 +233,6 @@ class _Job:
     config: PrepareConfig
 
 
-def _init_worker() -> None:
-    cv2.setNumThreads(1)
-
-
 def _run_job(job: _Job) -> tuple[str, int, float, float] | None:
     t, cfg, out = job.task, job.config, job.out
     img = prepare_image(read_frame(t.raw.path), cfg.crop, cfg.hw, cfg.interpolation)
@@ -272,14 +264,6 @@ def segments_rel(tuple_id: str) -> str:
 
 # ---- the stage --------------------------------------------------------------------------------------
 
-def _csv(header: list[str], rows: list[list[str]]) -> str:
-    buf = io.StringIO()
-    w = csv.writer(buf, lineterminator="\n")
-    w.writerow(header)
-    w.writerows(rows)
-    return buf.getvalue()
-
-
 def _write_tables(out: Path, per_scene: dict[str, list[FrameTask]], config: PrepareConfig) -> tuple[int, int]:
     frames, tuples, pairs = [], [], []
     for scene, tasks in per_scene.items():
@@ -290,9 +274,9 @@ def _write_tables(out: Path, per_scene: dict[str, list[FrameTask]], config: Prep
                                segments_rel(t.frame_id)])
             if k + 1 < len(tasks):
                 pairs.append([t.frame_id, scene, t.frame_id, tasks[k + 1].frame_id])
-    write_text(out / "frames.csv", _csv(["frame_id", "scene", "raw_file", "image", "gt"], frames))
-    write_text(out / "tuples.csv", _csv(["tuple_id", "scene", "target", "prev", "next", "segments"], tuples))
-    write_text(out / "pairs.csv", _csv(["pair_id", "scene", "frame1", "frame2"], pairs))
+    write_text(out / "frames.csv", csv_text(FRAMES_HEADER, frames))
+    write_text(out / "tuples.csv", csv_text(TUPLES_HEADER, tuples))
+    write_text(out / "pairs.csv", csv_text(PAIRS_HEADER, pairs))
     K = crop_resize_intrinsics(NYU_RGB_K, NYU_SIZE_HW, config.crop, config.hw, config.p2net_cxcy_bug)
     write_json(out / "camera.json", {
         "K": K, "height": config.height, "width": config.width, "p2net_cxcy_bug": config.p2net_cxcy_bug,
@@ -303,37 +287,9 @@ def _write_tables(out: Path, per_scene: dict[str, list[FrameTask]], config: Prep
     return len(tuples), len(pairs)
 
 
-def _run_all(jobs: list[_Job], workers: int, progress: bool) -> list[tuple[str, int, float, float] | None]:
-    bar = tqdm(total=len(jobs), desc="prepare", unit="frame", disable=not progress)
-    try:
-        if workers <= 1:
-            _init_worker()
-            results = []
-            for job in jobs:
-                results.append(_run_job(job))
-                bar.update()
-            return results
-        ctx = multiprocessing.get_context("spawn")
-        with cf.ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker) as pool:
-            results = []
-            for r in pool.map(_run_job, jobs, chunksize=max(1, min(16, len(jobs) // (4 * workers)))):
-                results.append(r)
-                bar.update()
-            return results
-    finally:
-        bar.close()
-
-
-def prepare(
-    nyu_raw: str | os.PathLike,
-    nyu_labeled: str | os.PathLike,
-    nyu_splits: str | os.PathLike,
-    out_dir: str | os.PathLike,
-    config: PrepareConfig,
-    synth_gt: str | os.PathLike | None = None,
-    train_scenes_file: str | os.PathLike | None = None,
-    progress: bool = True,
-) -> dict:
+def prepare(nyu_raw: str | os.PathLike, nyu_labeled: str | os.PathLike, nyu_splits: str | os.PathLike,
+            out_dir: str | os.PathLike, config: PrepareConfig, synth_gt: str | os.PathLike | None = None,
+            train_scenes_file: str | os.PathLike | None = None, progress: bool = True) -> dict:
     """Build ``out_dir`` (``data/prepared``) and return the stage metrics."""
     start = time.perf_counter()
     raw_root, out = Path(nyu_raw), Path(out_dir)
@@ -354,24 +310,14 @@ def prepare(
 
     with atomic_dir(out) as tmp:
         jobs = [_Job(t, tmp, config) for tasks in per_scene.values() for t in tasks]
-        results = [r for r in _run_all(jobs, config.workers, progress) if r is not None]
+        results = [r for r in map_jobs(_run_job, jobs, config.workers, "prepare", progress) if r is not None]
         n_tuples, n_pairs = _write_tables(tmp, per_scene, config)
     stats = np.array([r[1:] for r in results], dtype=np.float64).reshape(-1, 3)
     mean = stats.mean(axis=0) if len(stats) else np.zeros(3)
-    return {
-        "raw_scenes": len(raw_scenes),
-        "scenes": len(scenes),
-        "scenes_without_tuples": len(short),
-        "frames": len(jobs),
-        "frames_with_gt": sum(j.task.gt_src is not None for j in jobs),
-        "tuples": n_tuples,
-        "pairs": n_pairs,
-        "superpixels_per_target": float(mean[0]),
-        "superpixel_share_over_1000px": float(mean[1]),
-        "superpixel_share_over_scaled_px": float(mean[2]),
-        "superpixel_scaled_px": round(scaled_min_area(*config.hw), 1),
-        "height": config.height,
-        "width": config.width,
-        "seconds": round(time.perf_counter() - start, 2),
-    }
+    return {"raw_scenes": len(raw_scenes), "scenes": len(scenes), "scenes_without_tuples": len(short),
+            "frames": len(jobs), "frames_with_gt": sum(j.task.gt_src is not None for j in jobs),
+            "tuples": n_tuples, "pairs": n_pairs, "superpixels_per_target": float(mean[0]),
+            "superpixel_share_over_1000px": float(mean[1]), "superpixel_share_over_scaled_px": float(mean[2]),
+            "superpixel_scaled_px": round(scaled_min_area(*config.hw), 1), "height": config.height,
+            "width": config.width, "seconds": round(time.perf_counter() - start, 2)}
 

@@ -66,9 +66,8 @@ class DepthDecoder(nn.Module):
         return torch.sigmoid(self.dispconv(self.disp_pad(x)))
 
 
-def disp_to_depth(
-    disp: torch.Tensor, min_depth: float = 0.1, max_depth: float = 10.0
-) -> tuple[torch.Tensor, torch.Tensor]:
+def disp_to_depth(disp: torch.Tensor, min_depth: float = 0.1,
+                  max_depth: float = 10.0) -> tuple[torch.Tensor, torch.Tensor]:
     """Monodepth2's map of the sigmoid output to depth.
 
     disp (B,1,H,W) in [0, 1] → (scaled_disp = 1/max + (1/min − 1/max)·disp, depth = 1/scaled_disp), so

@@ -27,7 +27,6 @@ class ResnetEncoder(ResNet):
 
     def forward(self, x: torch.Tensor) -> list[torch.Tensor]:
         if x.shape[1] != self.in_channels:
-            raise ValueError(
-                f"encoder expects {self.in_channels} channels, got input of shape {tuple(x.shape)}"
-            )
+            raise ValueError(f"encoder expects {self.in_channels} channels, got input of shape "
+                             f"{tuple(x.shape)}")
         return self.features((x - INPUT_MEAN) / INPUT_STD)

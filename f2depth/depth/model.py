@@ -52,9 +52,8 @@ class DepthModelConfig:
 
     def __post_init__(self) -> None:
         if self.height <= 0 or self.width <= 0 or self.height % 32 or self.width % 32:
-            raise ValueError(
-                f"height={self.height}, width={self.width}: both must be positive multiples of 32"
-            )
+            raise ValueError(f"height={self.height}, width={self.width}: both must be positive "
+                             "multiples of 32")
         if not 0 < self.min_depth < self.max_depth:
             raise ValueError(f"need 0 < min_depth < max_depth, got {self.min_depth}, {self.max_depth}")
         if self.num_layers not in BLOCKS:
@@ -105,9 +104,8 @@ class DepthModel(nn.Module):
         """img (B,3,H,W) in [0, 1] → depth (B,1,H,W) metres in [min_depth, max_depth]."""
         return self.disp_to_depth(self.predict_disp(img))
 
-    def forward(
-        self, img: torch.Tensor, pose_pairs: Sequence[tuple] = ()
-    ) -> tuple[torch.Tensor, torch.Tensor, list[torch.Tensor]]:
+    def forward(self, img: torch.Tensor,
+                pose_pairs: Sequence[tuple] = ()) -> tuple[torch.Tensor, torch.Tensor, list[torch.Tensor]]:
         """One call for a training step (so DistributedDataParallel sees every parameter used).
 
         img (B,3,H,W) target in [0, 1]; pose_pairs: (img_a, img_b, invert) or (img_a, img_b, invert, prior,
@@ -169,22 +167,16 @@ class DepthModel(nn.Module):
         self.pose_encoder.load_imagenet(state, source=str(path))
 
 
-def save_checkpoint(
-    path: str | os.PathLike, model: DepthModel, params: dict[str, Any] | None = None, **extra: Any
-) -> None:
+def save_checkpoint(path: str | os.PathLike, model: DepthModel, params: dict[str, Any] | None = None,
+                    **extra: Any) -> None:
     """Write ``{"format": "f2depth.depth", "version": 1, "state_dict", "config", "params", **extra}``
     atomically (docs/formats.md, Models). ``extra`` may hold e.g. optimizer state or the epoch."""
     reserved = {"format", "version", "state_dict", "config", "params"} & set(extra)
     if reserved:
         raise ValueError(f"save_checkpoint: extra keys {sorted(reserved)} clash with the checkpoint format")
-    ckpt = {
-        "format": CHECKPOINT_FORMAT,
-        "version": CHECKPOINT_VERSION,
-        "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()},
-        "config": model.config.to_dict(),
-        "params": dict(params or {}),
-        **extra,
-    }
+    ckpt = {"format": CHECKPOINT_FORMAT, "version": CHECKPOINT_VERSION,
+            "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()},
+            "config": model.config.to_dict(), "params": dict(params or {}), **extra}
     torch_save(path, ckpt)
 
 
@@ -204,16 +196,12 @@ def read_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
         raise ValueError(f"{path}: expected a checkpoint dict, got {type(ckpt).__name__}")
     fmt = ckpt.get("format")
     if fmt != CHECKPOINT_FORMAT:
-        raise ValueError(
-            f"{path}: format {fmt!r} is not {CHECKPOINT_FORMAT!r}; this is not a DepthCNN/PoseCNN checkpoint"
-            " (flow models are 'f2depth.flow')"
-        )
+        raise ValueError(f"{path}: format {fmt!r} is not {CHECKPOINT_FORMAT!r}; this is not a "
+                         f"DepthCNN/PoseCNN checkpoint (flow models are 'f2depth.flow')")
     version = ckpt.get("version")
     if version != CHECKPOINT_VERSION:
-        raise ValueError(
-            f"{path}: checkpoint version {version!r} is not supported (expected {CHECKPOINT_VERSION}); "
-            "retrain with this version of f2depth"
-        )
+        raise ValueError(f"{path}: checkpoint version {version!r} is not supported (expected "
+                         f"{CHECKPOINT_VERSION}); retrain with this version of f2depth")
     missing = [k for k in ("state_dict", "config", "params") if k not in ckpt]
     if missing:
         raise ValueError(f"{path}: checkpoint lacks {missing}; the file is incomplete, retrain or re-save it")
@@ -268,8 +256,6 @@ def load_checkpoint(path: str | os.PathLike, map_location: str | torch.device = 
     except RuntimeError as exc:  # shape mismatches
         raise ValueError(f"{path}: state_dict does not fit DepthModel({config}): {exc}") from exc
     if result.missing_keys or result.unexpected_keys:
-        raise ValueError(
-            f"{path}: state_dict does not match DepthModel({config}): missing {result.missing_keys[:5]}, "
-            f"unexpected {result.unexpected_keys[:5]}"
-        )
+        raise ValueError(f"{path}: state_dict does not match DepthModel({config}): missing "
+                         f"{result.missing_keys[:5]}, unexpected {result.unexpected_keys[:5]}")
     return model.to(map_location)

@@ -32,9 +32,8 @@ class BasicBlock(nn.Module):
         self.bn2 = nn.BatchNorm2d(out_ch)
         self.downsample: nn.Module | None = None
         if stride != 1 or in_ch != out_ch:
-            self.downsample = nn.Sequential(
-                nn.Conv2d(in_ch, out_ch, 1, stride=stride, bias=False), nn.BatchNorm2d(out_ch)
-            )
+            self.downsample = nn.Sequential(nn.Conv2d(in_ch, out_ch, 1, stride=stride, bias=False),
+                                            nn.BatchNorm2d(out_ch))
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         identity = x if self.downsample is None else self.downsample(x)
@@ -92,9 +91,8 @@ class ResNet(nn.Module):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         if not hasattr(self, "fc"):
-            raise RuntimeError(
-                "this ResNet was built without a classifier (num_classes=None); use features()"
-            )
+            raise RuntimeError("this ResNet was built without a classifier (num_classes=None); "
+                               "use features()")
         return self.fc(torch.flatten(self.avgpool(self.features(x)[-1]), 1))
 
     def load_imagenet(self, state_dict: dict[str, torch.Tensor], source: str = "state_dict") -> None:
@@ -109,12 +107,10 @@ class ResNet(nn.Module):
         missing = [k for k in own if k not in state_dict and not k.endswith("num_batches_tracked")]
         unexpected = [k for k in state_dict if k not in own and not k.startswith("fc.")]
         if missing or unexpected:
-            raise ValueError(
-                f"{source}: not a torchvision resnet{self.num_layers} state_dict "
-                f"(missing {missing[:5]}{'…' if len(missing) > 5 else ''}, "
-                f"unexpected {unexpected[:5]}{'…' if len(unexpected) > 5 else ''}); "
-                f"give the path of a torchvision resnet{self.num_layers} ImageNet .pth file"
-            )
+            raise ValueError(f"{source}: not a torchvision resnet{self.num_layers} state_dict "
+                             f"(missing {missing[:5]}{'…' if len(missing) > 5 else ''}, "
+                             f"unexpected {unexpected[:5]}{'…' if len(unexpected) > 5 else ''}); "
+                             f"give the path of a torchvision resnet{self.num_layers} ImageNet .pth file")
         new = {}
         for key, value in own.items():
             if key not in state_dict:
@@ -122,17 +118,13 @@ class ResNet(nn.Module):
             src = state_dict[key]
             if key == "conv1.weight" and self.in_channels != src.shape[1]:
                 if src.ndim != 4 or self.in_channels % src.shape[1] != 0:
-                    raise ValueError(
-                        f"{source}: conv1.weight has shape {tuple(src.shape)}, cannot fill "
-                        f"{self.in_channels} input channels"
-                    )
+                    raise ValueError(f"{source}: conv1.weight has shape {tuple(src.shape)}, cannot fill "
+                                     f"{self.in_channels} input channels")
                 k = self.in_channels // src.shape[1]
                 src = torch.cat([src] * k, dim=1) / k
             if tuple(src.shape) != tuple(value.shape):
-                raise ValueError(
-                    f"{source}: {key} has shape {tuple(src.shape)}, expected {tuple(value.shape)}; "
-                    f"is this a resnet{self.num_layers} checkpoint?"
-                )
+                raise ValueError(f"{source}: {key} has shape {tuple(src.shape)}, expected "
+                                 f"{tuple(value.shape)}; is this a resnet{self.num_layers} checkpoint?")
             new[key] = src.to(value.dtype)
         self.load_state_dict(new, strict=False)
 
@@ -144,10 +136,9 @@ def load_imagenet_resnet(path: str | os.PathLike, num_layers: int = 18) -> dict[
     """
     path = Path(path)
     if not path.is_file():
-        raise FileNotFoundError(
-            f"{path}: ImageNet weights not found; set train_depth.imagenet_weights to a torchvision "
-            f"resnet{num_layers} .pth file, or to null for random initialisation"
-        )
+        raise FileNotFoundError(f"{path}: ImageNet weights not found; set train_depth.imagenet_weights to a "
+                                f"torchvision resnet{num_layers} .pth file, or to null for random "
+                                f"initialisation")
     try:
         obj = torch.load(path, map_location="cpu", weights_only=True)
     except (RuntimeError, OSError, ValueError, pickle.UnpicklingError) as exc:
@@ -162,7 +153,3 @@ def load_imagenet_resnet(path: str | os.PathLike, num_layers: int = 18) -> dict[
     ).load_imagenet(obj, source=str(path))
     return obj
 
-
-def load_imagenet_resnet18(path: str | os.PathLike) -> dict[str, torch.Tensor]:
-    """``load_imagenet_resnet(path, 18)``: a validated torchvision resnet18 ImageNet state_dict."""
-    return load_imagenet_resnet(path, 18)

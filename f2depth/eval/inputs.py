@@ -146,15 +146,9 @@ def batched(items: Iterable[T], size: int) -> Iterator[list[T]]:
         yield chunk
 
 
-def run_batch(
-    predict_disp: PredictDisp,
-    inputs: Sequence[torch.Tensor],
-    *,
-    device: str | torch.device = "cpu",
-    post_process: bool = False,
-    out_hw: tuple[int, int] | None = None,
-    upsample: str = "nearest",
-) -> np.ndarray:
+def run_batch(predict_disp: PredictDisp, inputs: Sequence[torch.Tensor], *,
+              device: str | torch.device = "cpu", post_process: bool = False,
+              out_hw: tuple[int, int] | None = None, upsample: str = "nearest") -> np.ndarray:
     """Stack inputs (3,h,w) → predict (with PP) → disp (B,H,W) float32 NumPy at ``out_hw`` (or h,w)."""
     x = torch.stack(list(inputs), 0).to(device)
     with torch.no_grad():

@@ -54,23 +54,16 @@ def compute_errors(gt: np.ndarray, pred: np.ndarray) -> dict[str, float]:
     if gt.size == 0:
         raise EmptyMaskError("no valid pixels to compute metrics on")
     if np.any(gt <= 0) or np.any(pred <= 0):
-        raise ValueError(
-            "gt and pred must be > 0 on the pixels passed to compute_errors (mask and clip first)"
-        )
+        raise ValueError("gt and pred must be > 0 on the pixels passed to compute_errors "
+                         "(mask and clip first)")
     diff = gt - pred
     sq = diff * diff
     ratio = np.maximum(gt / pred, pred / gt)  # the reference definition (exact at the thresholds)
     log_diff = np.log(ratio)  # |ln gt − ln pred|; log10 is this / ln 10
-    return {
-        "abs_rel": float(np.mean(np.abs(diff) / gt)),
-        "sq_rel": float(np.mean(sq / gt)),
-        "rmse": float(np.sqrt(np.mean(sq))),
-        "rmse_log": float(np.sqrt(np.mean(log_diff * log_diff))),
-        "log10": float(np.mean(log_diff) / np.log(10.0)),
-        "a1": float(np.mean(ratio < 1.25)),
-        "a2": float(np.mean(ratio < 1.25**2)),
-        "a3": float(np.mean(ratio < 1.25**3)),
-    }
+    return {"abs_rel": float(np.mean(np.abs(diff) / gt)), "sq_rel": float(np.mean(sq / gt)),
+            "rmse": float(np.sqrt(np.mean(sq))), "rmse_log": float(np.sqrt(np.mean(log_diff * log_diff))),
+            "log10": float(np.mean(log_diff) / np.log(10.0)), "a1": float(np.mean(ratio < 1.25)),
+            "a2": float(np.mean(ratio < 1.25**2)), "a3": float(np.mean(ratio < 1.25**3))}
 
 
 def median_scale(pred: np.ndarray, gt: np.ndarray) -> tuple[np.ndarray, float]:
@@ -92,15 +85,9 @@ def clip_depth(pred: np.ndarray, min_depth: float = 0.1, max_depth: float = 10.0
     return np.clip(pred, min_depth, max_depth)
 
 
-def image_metrics(
-    gt: np.ndarray,
-    pred: np.ndarray,
-    mask: np.ndarray | None = None,
-    *,
-    median_scaling: bool = True,
-    min_depth: float = 0.1,
-    max_depth: float = 10.0,
-) -> tuple[dict[str, float], float]:
+def image_metrics(gt: np.ndarray, pred: np.ndarray, mask: np.ndarray | None = None, *,
+                  median_scaling: bool = True, min_depth: float = 0.1,
+                  max_depth: float = 10.0) -> tuple[dict[str, float], float]:
     """Mask → median-scale → clip → metrics for one image.
 
     gt, pred: same shape (H,W) or (N,), metres; mask: bool, same shape, default ``gt > 0``.
@@ -226,14 +213,8 @@ def flip_post_process(disp: Any, disp_flipped_back: Any) -> Any:
     return r_mask * disp + l_mask * disp_flipped_back + (1.0 - l_mask - r_mask) * mean
 
 
-def predict_disparity(
-    predict_disp: PredictDisp,
-    img: torch.Tensor,
-    *,
-    post_process: bool = False,
-    out_hw: tuple[int, int] | None = None,
-    upsample: str = "nearest",
-) -> torch.Tensor:
+def predict_disparity(predict_disp: PredictDisp, img: torch.Tensor, *, post_process: bool = False,
+                      out_hw: tuple[int, int] | None = None, upsample: str = "nearest") -> torch.Tensor:
     """Run ``predict_disp`` on img (B,3,h,w) in [0,1], optionally with flip post-processing.
 
     With ``post_process`` the network sees the batch ``[img, flip(img)]`` (2B images). When
@@ -246,9 +227,8 @@ def predict_disparity(
     x = torch.cat([img, img.flip(-1)], 0) if post_process else img
     disp = predict_disp(x)
     if disp.ndim != 4 or disp.shape[0] != x.shape[0] or disp.shape[1] != 1:
-        raise ValueError(
-            f"predict_disp must return disp (B,1,H,W) for an input {tuple(x.shape)}, got {tuple(disp.shape)}"
-        )
+        raise ValueError(f"predict_disp must return disp (B,1,H,W) for an input {tuple(x.shape)}, got "
+                         f"{tuple(disp.shape)}")
     if out_hw is not None:
         disp = resize_disparity(disp, out_hw, upsample)
     if not post_process:

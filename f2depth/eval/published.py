@@ -15,8 +15,6 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
-PAPER = "F²Depth (Guo et al., arXiv 2403.18443)"
-
 _NYU_KEYS = ("abs_rel", "rmse", "log10", "a1", "a2", "a3")
 _7S_KEYS = ("abs_rel", "rmse", "a1", "a2", "a3")
 
@@ -68,31 +66,20 @@ _TABLE6: tuple[tuple[Any, ...], ...] = (
 
 # tab:tab7scenes — 7-Scenes zero-shot, both + PP. scene → (REL, RMS, δ1, δ2, δ3)
 _SEVENSCENES: dict[str, dict[str, tuple[float, ...]]] = {
-    "F²Depth": {
-        "chess": (0.18, 0.4, 0.689, 0.942, 0.994),
-        "fire": (0.172, 0.315, 0.713, 0.955, 0.992),
-        "heads": (0.18, 0.19, 0.725, 0.93, 0.987),
-        "office": (0.154, 0.35, 0.781, 0.97, 0.997),
-        "pumpkin": (0.12, 0.335, 0.86, 0.981, 0.996),
-        "redkitchen": (0.162, 0.396, 0.751, 0.954, 0.995),
-        "stairs": (0.162, 0.468, 0.754, 0.911, 0.967),
-        "Average": (0.159, 0.361, 0.758, 0.956, 0.993),
-    },
-    "P²Net": {
-        "chess": (0.184, 0.41, 0.67, 0.94, 0.993),
-        "fire": (0.159, 0.294, 0.763, 0.964, 0.994),
-        "heads": (0.188, 0.198, 0.701, 0.924, 0.982),
-        "office": (0.156, 0.35, 0.774, 0.97, 0.997),
-        "pumpkin": (0.141, 0.378, 0.798, 0.977, 0.995),
-        "redkitchen": (0.165, 0.403, 0.734, 0.952, 0.994),
-        "stairs": (0.157, 0.455, 0.769, 0.911, 0.971),
-        "Average": (0.163, 0.367, 0.747, 0.955, 0.993),
-    },
+    "F²Depth": {"chess": (0.18, 0.4, 0.689, 0.942, 0.994), "fire": (0.172, 0.315, 0.713, 0.955, 0.992),
+                "heads": (0.18, 0.19, 0.725, 0.93, 0.987), "office": (0.154, 0.35, 0.781, 0.97, 0.997),
+                "pumpkin": (0.12, 0.335, 0.86, 0.981, 0.996),
+                "redkitchen": (0.162, 0.396, 0.751, 0.954, 0.995),
+                "stairs": (0.162, 0.468, 0.754, 0.911, 0.967),
+                "Average": (0.159, 0.361, 0.758, 0.956, 0.993)},
+    "P²Net": {"chess": (0.184, 0.41, 0.67, 0.94, 0.993), "fire": (0.159, 0.294, 0.763, 0.964, 0.994),
+              "heads": (0.188, 0.198, 0.701, 0.924, 0.982), "office": (0.156, 0.35, 0.774, 0.97, 0.997),
+              "pumpkin": (0.141, 0.378, 0.798, 0.977, 0.995),
+              "redkitchen": (0.165, 0.403, 0.734, 0.952, 0.994),
+              "stairs": (0.157, 0.455, 0.769, 0.911, 0.971), "Average": (0.163, 0.367, 0.747, 0.955, 0.993)},
 }
-SEVENSCENES_TITLES = {
-    "chess": "Chess", "fire": "Fire", "heads": "Heads", "office": "Office", "pumpkin": "Pumpkin",
-    "redkitchen": "RedKitchen", "stairs": "Stairs",
-}  # fmt: skip
+SEVENSCENES_TITLES = {"chess": "Chess", "fire": "Fire", "heads": "Heads", "office": "Office",
+                      "pumpkin": "Pumpkin", "redkitchen": "RedKitchen", "stairs": "Stairs"}  # fmt: skip
 
 # tab:tab3 — Campus Indoor, mean of 18 scenes (last row: F²Depth on NYU, for reference).
 # method, supervised, REL, RMS, log10, δ1, δ2, δ3
@@ -131,10 +118,8 @@ _CAMPUS_SCENES: tuple[tuple[float, ...], ...] = (
 CAMPUS_IMAGES = 99
 """Images of Campus Indoor's 18 scenes (the paper §4.1)."""
 
-INFERENCE_MS = {
-    "no_pp": 9.4, "pp": 13.5, "device": "NVIDIA GeForce RTX 3090", "height": 288, "width": 384,
-    "source": "text of §4.2.1 (Evaluation of depth estimation on NYU Depth V2), beside tab:tab1",
-}  # fmt: skip
+INFERENCE_MS = {"no_pp": 9.4, "pp": 13.5, "device": "NVIDIA GeForce RTX 3090", "height": 288, "width": 384,
+                "source": "text of §4.2.1 (Evaluation of depth estimation on NYU Depth V2), beside tab:tab1"}
 
 
 def _row(source: str, keys: tuple[str, ...], values: Sequence[Any], **fields: Any) -> dict[str, Any]:
@@ -148,14 +133,6 @@ def table1() -> list[dict[str, Any]]:
     the six metrics, ``source``, ``quoted``."""
     return [_row("tab:tab1", _NYU_KEYS, v, method=m, supervised=s, transformer=t, post_process=pp)
             for m, s, t, pp, *v in _TABLE1]
-
-
-def nyu(method: str = "F²Depth", post_process: bool = False) -> dict[str, Any]:
-    """One tab:tab1 row by method name (e.g. ``F²Depth``, ``P²Net``) and PP flag."""
-    for row in table1():
-        if row["method"] == method and row["post_process"] == post_process:
-            return row
-    raise KeyError(f"no tab:tab1 row for method {method!r} with post_process={post_process}")
 
 
 def table5() -> list[dict[str, Any]]:

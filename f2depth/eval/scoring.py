@@ -219,10 +219,6 @@ def _same_size(items: list[_Item]) -> list[list[_Item]]:
     return groups
 
 
-def _scene_order(name: str) -> tuple[int, int | str]:
-    return (0, int(name)) if name.isdigit() else (1, name)
-
-
 class _Tally:
     """What the scored images add up to."""
 
@@ -264,18 +260,18 @@ class _Tally:
         report_skipped(p.title, ["/".join(map(str, k)) for k in self.skipped], len(self.records))
         per_image = stack_per_image(self.records)
         scenes = {}
-        for name in sorted(set(self.scenes), key=_scene_order):
+        for name in sorted(set(self.scenes), key=lambda s: (0, int(s)) if s.isdigit() else (1, s)):
             sel = np.array([n == name for n in self.scenes])
             scenes[name] = aggregate({m: per_image[m][sel] for m in METRIC_NAMES})
         summary, average = aggregate(per_image), mean_of_rows([v.mean for v in scenes.values()])
         pooled = None
         if p.ground_truth == "points":
             pooled = compute_errors(*map(np.concatenate, self.pooled)) if self.pooled[0] else {}
-        return ProtocolResult(
-            metrics=dict(summary.mean if p.headline == "images" else average), summary=summary, scenes=scenes,
-            average=average, per_image=per_image, keys=self.keys, scene=self.scenes, skipped=self.skipped,
-            settings=s.record(p.records), kept=[self.kept[i] for i in keep if i in self.kept], pooled=pooled,
-        )  # fmt: skip
+        return ProtocolResult(metrics=dict(summary.mean if p.headline == "images" else average),
+                              summary=summary, scenes=scenes, average=average, per_image=per_image,
+                              keys=self.keys, scene=self.scenes, skipped=self.skipped,
+                              settings=s.record(p.records),
+                              kept=[self.kept[i] for i in keep if i in self.kept], pooled=pooled)  # fmt: skip
 
 
 def score(p: Protocol, s: Settings, samples: Iterable[EvalSample], predict_disp: PredictDisp, *, batch: int,

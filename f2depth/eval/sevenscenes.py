@@ -6,8 +6,8 @@ evaluation) before the PP blend, valid where 0 < gt ≤ 10 m (0 and the 65535 mm
 inf metres count as missing too, logged in one warning line), median scaling, clip to [0.1, 10] m.
 
 Headline: the mean over all test frames. The paper's "Average" row (Table 2) is the *frame-weighted*
-mean of its scene rows with the official test counts (:data:`TEST_FRAMES`), not the unweighted one
-(see tests/test_eval_published.py); details.json has both (``frame_weighted``, ``average``).
+mean of its scene rows with the official test counts (17,000 frames in all, the paper §4.1), not the
+unweighted one (see tests/test_eval_published.py); details.json has both (``frame_weighted``, ``average``).
 """
 
 from __future__ import annotations
@@ -17,12 +17,6 @@ from f2depth.eval import published
 from f2depth.eval.inputs import middle_frames
 from f2depth.eval.protocol import Figure, Protocol, Report, SceneRows, SceneTable
 from f2depth.eval.scoring import Settings
-
-TEST_FRAMES: dict[str, int] = {
-    "chess": 2000, "fire": 2000, "heads": 1000, "office": 4000, "pumpkin": 2000, "redkitchen": 5000,
-    "stairs": 1000,
-}  # fmt: skip
-"""Frames in the official test sequences (TestSplit.txt) per scene; 17,000 in all (the paper §4.1)."""
 
 PROTOCOL = Protocol(
     name="sevenscenes",

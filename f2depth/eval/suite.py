@@ -30,6 +30,7 @@ from f2depth.eval.metrics import PredictDisp
 from f2depth.eval.protocol import Protocol
 from f2depth.eval.scoring import Kept, Settings
 from f2depth.eval.timing import time_inference
+from f2depth.io import csv_text
 
 DATASETS = registry.NAMES
 GROUPS = tuple(f"{d}{s}" for d in DATASETS for s in ("", "_pp"))
@@ -154,10 +155,9 @@ def evaluate_model(predict: PredictDisp, sets: Mapping[str, SampleSet], cfg: Sui
                 out.kept.update(_keep_arrays(name, r.kept, cfg.figure_width))
     timing = {}
     for key, pp in zip(TIMING_KEYS, (False, True)):
-        timing[key] = time_inference(
-            predict, height=cfg.timing_height, width=cfg.timing_width, post_process=pp,
-            repeats=cfg.timing_repeats, warmup=cfg.timing_warmup, device=cfg.device,
-        )  # fmt: skip
+        timing[key] = time_inference(predict, height=cfg.timing_height, width=cfg.timing_width,
+                                     post_process=pp, repeats=cfg.timing_repeats, warmup=cfg.timing_warmup,
+                                     device=cfg.device)
         out.headline[key] = timing[key]["ms_median"]
     out.details["timing"] = timing
     return out
@@ -186,26 +186,13 @@ def metrics_document(variant: str, seeds: Sequence[int],
     that seed's headline)."""
     if len(seeds) != len(headlines):
         raise ValueError(f"{len(seeds)} seeds but {len(headlines)} results")
-    return {
-        **mean_over_seeds(headlines),
-        "n_seeds": len(seeds),
-        "per_seed": {f"seed{s}": h for s, h in zip(seeds, headlines)},
-        "variant": variant,
-    }
+    return {**mean_over_seeds(headlines), "n_seeds": len(seeds),
+            "per_seed": {f"seed{s}": h for s, h in zip(seeds, headlines)}, "variant": variant}
 
 
 def rows_csv(rows: Sequence[dict[str, Any]]) -> str:
     """Per-image rows (dicts, possibly with different keys) as CSV text; columns in first-seen order,
     floats written exactly (``repr``), missing cells empty."""
-    import csv
-    import io
-
-    fields: list[str] = []
-    for r in rows:
-        fields.extend(k for k in r if k not in fields)
-    buf = io.StringIO()
-    writer = csv.DictWriter(buf, fieldnames=fields, lineterminator="\n", restval="")
-    writer.writeheader()
-    for r in rows:
-        writer.writerow({k: repr(v) if isinstance(v, float) else v for k, v in r.items()})
-    return buf.getvalue()
+    fields = list(dict.fromkeys(k for r in rows for k in r))
+    return csv_text(fields, ([repr(v) if isinstance(v, float) else v for v in (r.get(k, "") for k in fields)]
+                             for r in rows))

@@ -32,10 +32,9 @@ QUOTED = "quoted"
 RULE: dict[str, Any] = {"_rule": True}
 MARKER = "†"
 
-METRIC_HEADERS: dict[str, str] = {
-    "abs_rel": "AbsRel↓", "sq_rel": "SqRel↓", "rmse": "RMS↓", "rmse_log": "RMSlog↓", "log10": "log10↓",
-    "a1": "δ<1.25↑", "a2": "δ<1.25²↑", "a3": "δ<1.25³↑",
-}  # fmt: skip
+METRIC_HEADERS: dict[str, str] = {"abs_rel": "AbsRel↓", "sq_rel": "SqRel↓", "rmse": "RMS↓",
+                                  "rmse_log": "RMSlog↓", "log10": "log10↓", "a1": "δ<1.25↑", "a2": "δ<1.25²↑",
+                                  "a3": "δ<1.25³↑"}
 
 _LATEX_SPECIAL = {
     "\\": r"\textbackslash{}", "&": r"\&", "%": r"\%", "$": r"\$", "#": r"\#", "_": r"\_", "{": r"\{",
@@ -107,9 +106,8 @@ def _body_rows(rows: Sequence[Mapping[str, Any]]) -> list[Mapping[str, Any]]:
 
 
 def _seed_counts(rows: Sequence[Mapping[str, Any]], columns: Sequence[Column]) -> list[int]:
-    return sorted(
-        {len(r[c.key]) for r in _body_rows(rows) for c in columns if _is_seq(r.get(c.key))} - {0, 1}
-    )
+    counts = {len(r[c.key]) for r in _body_rows(rows) for c in columns if _is_seq(r.get(c.key))}
+    return sorted(counts - {0, 1})
 
 
 def _notes(rows: Sequence[Mapping[str, Any]], columns: Sequence[Column], quoted_note: str) -> list[str]:
@@ -122,13 +120,8 @@ def _notes(rows: Sequence[Mapping[str, Any]], columns: Sequence[Column], quoted_
     return notes
 
 
-def to_markdown(
-    rows: Sequence[Mapping[str, Any]],
-    columns: Sequence[Column],
-    *,
-    title: str | None = None,
-    quoted_note: str = "quoted from the paper, not reproduced",
-) -> str:
+def to_markdown(rows: Sequence[Mapping[str, Any]], columns: Sequence[Column], *, title: str | None = None,
+                quoted_note: str = "quoted from the paper, not reproduced") -> str:
     """A GitHub-flavoured Markdown table (first column left-aligned), with notes under it."""
 
     def cell(text: str) -> str:
@@ -192,21 +185,14 @@ def to_csv(rows: Sequence[Mapping[str, Any]], columns: Sequence[Column]) -> str:
     return buf.getvalue()
 
 
-def to_latex(
-    rows: Sequence[Mapping[str, Any]],
-    columns: Sequence[Column],
-    *,
-    caption: str | None = None,
-    label: str | None = None,
-    quoted_note: str = "quoted from the paper, not reproduced",
-) -> str:
+def to_latex(rows: Sequence[Mapping[str, Any]], columns: Sequence[Column], *, caption: str | None = None,
+             label: str | None = None, quoted_note: str = "quoted from the paper, not reproduced") -> str:
     """A booktabs ``tabular`` (wrapped in a ``table`` with caption, label and notes when a caption or
     label is given). Needs ``\\usepackage{booktabs}`` (and ``amssymb`` for ✓)."""
     spec = "".join("l" if i == 0 else c.align for i, c in enumerate(columns))
     lines = [rf"\begin{{tabular}}{{{spec}}}", r"\toprule"]
-    lines.append(
-        " & ".join(c.latex if c.latex is not None else latex_escape(c.header) for c in columns) + r" \\"
-    )
+    lines.append(" & ".join(c.latex if c.latex is not None else latex_escape(c.header) for c in columns)
+                 + r" \\")
     lines.append(r"\midrule")
     for r in rows:
         if r.get("_rule"):
@@ -229,16 +215,9 @@ def to_latex(
     return "\n".join(head + lines + tail + [r"\end{table}"]) + "\n"
 
 
-def write_table(
-    stem: str | os.PathLike,
-    rows: Sequence[Mapping[str, Any]],
-    columns: Sequence[Column],
-    *,
-    title: str | None = None,
-    caption: str | None = None,
-    label: str | None = None,
-    quoted_note: str = "quoted from the paper, not reproduced",
-) -> None:
+def write_table(stem: str | os.PathLike, rows: Sequence[Mapping[str, Any]], columns: Sequence[Column], *,
+                title: str | None = None, caption: str | None = None, label: str | None = None,
+                quoted_note: str = "quoted from the paper, not reproduced") -> None:
     """Write ``<stem>.md``, ``<stem>.csv`` and ``<stem>.tex`` atomically."""
     stem = os.fspath(stem)
     write_text(f"{stem}.md", to_markdown(rows, columns, title=title, quoted_note=quoted_note))

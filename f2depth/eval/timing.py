@@ -27,17 +27,9 @@ def _synchronize(device: torch.device) -> None:
         torch.mps.synchronize()
 
 
-def time_inference(
-    predict_disp: PredictDisp,
-    *,
-    height: int = 288,
-    width: int = 384,
-    post_process: bool = False,
-    repeats: int = 20,
-    warmup: int = 3,
-    device: str | torch.device = "cpu",
-    seed: int = 0,
-) -> dict[str, Any]:
+def time_inference(predict_disp: PredictDisp, *, height: int = 288, width: int = 384,
+                   post_process: bool = False, repeats: int = 20, warmup: int = 3,
+                   device: str | torch.device = "cpu", seed: int = 0) -> dict[str, Any]:
     """Milliseconds per image for ``predict_disp`` (img (1,3,H,W) → disp (1,1,H,W)) on ``device``.
 
     Returns ``{"ms_median", "ms_mean", "ms_min", "ms_max", "repeats", "warmup", "height", "width",
@@ -58,17 +50,6 @@ def time_inference(
             if i >= warmup:
                 times.append((time.perf_counter() - t0) * 1000.0)
     ms = np.asarray(times)
-    return {
-        "ms_median": float(np.median(ms)),
-        "ms_mean": float(ms.mean()),
-        "ms_min": float(ms.min()),
-        "ms_max": float(ms.max()),
-        "repeats": repeats,
-        "warmup": warmup,
-        "height": height,
-        "width": width,
-        "batch": 1,
-        "post_process": post_process,
-        "device": str(dev),
-        "threads": torch.get_num_threads(),
-    }
+    return {"ms_median": float(np.median(ms)), "ms_mean": float(ms.mean()), "ms_min": float(ms.min()),
+            "ms_max": float(ms.max()), "repeats": repeats, "warmup": warmup, "height": height, "width": width,
+            "batch": 1, "post_process": post_process, "device": str(dev), "threads": torch.get_num_threads()}

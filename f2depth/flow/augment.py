@@ -5,7 +5,7 @@ with probability 0.5 a horizontal flip of both frames and of the target's keypoi
 
 As in P²Net, the jittered images are only the *network input*; the loss compares the un-jittered
 (but flipped) frames. A flip changes the sign of the horizontal flow component: flipping a pair and its
-flow ``f`` gives the flow ``(−u, v)`` mirrored (:func:`hflip_flow`); frames are never swapped, so the
+flow ``f`` gives the flow ``(−u, v)`` mirrored; frames are never swapped, so the
 flow stays target → source. All randomness comes from the ``torch.Generator`` passed in.
 
 The jitter operations are ``f2depth.colour.adjust`` with MATLAB's grey weights (``GREY_MATLAB``).
@@ -58,13 +58,6 @@ def hflip_keypoints(keypoints: torch.Tensor, width: int) -> torch.Tensor:
     """``(...,2)`` integer pixels x first → mirrored: ``x ↦ W − 1 − x``."""
     out = keypoints.clone()
     out[..., 0] = width - 1 - out[..., 0]
-    return out
-
-
-def hflip_flow(flow: torch.Tensor) -> torch.Tensor:
-    """Flow ``(B,2,H,W)`` of a pair → the flow of the mirrored pair: mirrored, u negated."""
-    out = flow.flip(-1).clone()
-    out[:, 0] = -out[:, 0]
     return out
 
 

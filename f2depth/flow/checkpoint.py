@@ -67,7 +67,7 @@ def _torch_load(path: str | os.PathLike) -> Any:
     if not p.is_file():
         raise CheckpointError(f"{p}: flow checkpoint not found; check the params.yaml key that names it "
                               "(flow_pretrain.checkpoint, flow_finetune.pretrained or "
-                              "variants.<name>.flow_model)")
+                              "variants.<name>.flow)")
     try:
         return load_weights(p, "an f2depth or ARFlow checkpoint", _FIX_ARFLOW)
     except ValueError as exc:

@@ -35,11 +35,8 @@ def correlation_reference(f1: torch.Tensor, f2: torch.Tensor, max_displacement: 
     _, _, h, w = f1.shape
     r = max_displacement
     f2p = F.pad(f2, (r, r, r, r))
-    outs = [
-        (f1 * f2p[:, :, dy : dy + h, dx : dx + w]).mean(1, keepdim=True)
-        for dy in range(2 * r + 1)
-        for dx in range(2 * r + 1)
-    ]
+    outs = [(f1 * f2p[:, :, dy : dy + h, dx : dx + w]).mean(1, keepdim=True)
+            for dy in range(2 * r + 1) for dx in range(2 * r + 1)]
     return torch.cat(outs, 1)
 
 

@@ -64,7 +64,7 @@ class FinetuneConfig:
     patch_spacing: int = 2
     w_scales: tuple[float, ...] = (1.0,)  # patch: weight per level, finest first (ARFlow: 1, 1, 1, 1, 0)
     backward: bool = False            # patch: also the backward term (ARFlow's with_bk)
-    smooth_weight: float = 50.0       # lambda_flow_smooth
+    smooth_weight: float = 50.0       # loss_weights.flow_smooth
     occlusion: str = "forward_backward"  # the paper's check; "range_map" for a degenerate pretrained flow
     augment: bool = True
     amp: bool = False                 # autocast the network (CUDA float16, CPU bfloat16)
@@ -121,11 +121,6 @@ def batch_loss(flows_fw: Sequence[torch.Tensor], flows_bw: Sequence[torch.Tensor
     if keypoints is None or keypoint_mask is None:
         raise ValueError("batch_loss: the patch loss needs keypoints and keypoint_mask")
     return finetune_loss(flows_fw, flows_bw, img1, img2, keypoints, keypoint_mask, cfg.patch_loss_config())
-
-
-def make_scaler(device: torch.device | str, cfg: FinetuneConfig) -> torch.amp.GradScaler:
-    """GradScaler for float16 on CUDA; a disabled (pass-through) one otherwise."""
-    return grad_scaler(device, cfg.amp)
 
 
 @torch.no_grad()
@@ -208,7 +203,7 @@ def finetune(model: FlowNetwork, dataset: FlowPairs, cfg: FinetuneConfig, eval_p
     eval_pairs = list(eval_pairs)
     model.to(device)
     optimizer = make_optimizer(model, cfg)
-    scaler = make_scaler(device, cfg)
+    scaler = grad_scaler(device, cfg.amp)  # float16 on CUDA only; else a pass-through
     run = f"flow_finetune[{cfg.loss}]"
     loop = EpochLoop(run, cfg.epochs, {"model": model, "optimizer": optimizer, "scaler": scaler}, resume_path,
                      hash_settings({"config": asdict(cfg), "pairs": [p.pair_id for p in dataset.pairs],

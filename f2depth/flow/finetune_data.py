@@ -138,11 +138,15 @@ def gt_pair(ds: PreparedSet, p: PairRecord, K: np.ndarray | None = None) -> GTPa
                   low_texture_mask(img1))
 
 
-def gt_pairs(ds: PreparedSet, pairs: list[PairRecord], limit: int | None = None) -> Iterator[GTPair]:
-    """:func:`gt_pair` of the pairs that have ground truth (lazily); with ``limit``, at most that many,
-    spread evenly over the list."""
-    K = true_intrinsics(ds)
+def scored_pairs(ds: PreparedSet, pairs: list[PairRecord], limit: int | None = None) -> list[PairRecord]:
+    """The pairs that have ground truth; with ``limit``, at most that many, spread evenly over the list."""
     scored = [p for p in pairs if _has_gt(ds, p)]
     if limit is not None and len(scored) > limit:
         scored = [scored[int(i)] for i in np.linspace(0, len(scored) - 1, limit).round()]
-    return (gt_pair(ds, p, K) for p in scored)
+    return scored
+
+
+def gt_pairs(ds: PreparedSet, pairs: list[PairRecord], limit: int | None = None) -> Iterator[GTPair]:
+    """:func:`gt_pair` of :func:`scored_pairs` (lazily)."""
+    K = true_intrinsics(ds)
+    return (gt_pair(ds, p, K) for p in scored_pairs(ds, pairs, limit))

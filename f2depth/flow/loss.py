@@ -22,7 +22,7 @@ import torch
 import torch.nn.functional as F
 
 from f2depth.flow.census import census_distance
-from f2depth.flow.warp import base_grid, warp
+from f2depth.geometry import pixel_grid, warp
 
 MASK_EPS = 1e-7
 
@@ -54,9 +54,6 @@ SINTEL_RAW = FlowLossConfig()
 
 SINTEL_FT = FlowLossConfig(w_l1=0.0, w_ssim=0.0, w_ternary=1.0, occ_from_back=False)
 """``configs/sintel_ft.json`` (and sintel_raw's ``stage1`` switch): census, forward–backward occlusion."""
-
-SETTINGS = {"sintel_raw": SINTEL_RAW, "sintel_ft": SINTEL_FT}
-
 
 def mean3x3(x: torch.Tensor) -> torch.Tensor:
     """3×3 box mean without padding, ``(B,C,H,W)`` → ``(B,C,H−2,W−2)``: ``avg_pool2d(x, 3, 1)`` computed
@@ -108,7 +105,7 @@ def range_map(flow: torch.Tensor) -> torch.Tensor:
     (neighbours outside the image get no weight; a non-finite flow lands nowhere, so the loss it makes is
     non-finite and the step is skipped, not an index error)."""
     b, _, h, w = flow.shape
-    pos = base_grid(h, w, flow.dtype, flow.device) + flow
+    pos = pixel_grid(h, w, flow.dtype, flow.device) + flow
     pos = torch.nan_to_num(pos, nan=-2.0, posinf=-2.0, neginf=-2.0)
     x, y = pos[:, 0].reshape(b, -1), pos[:, 1].reshape(b, -1)
     x0, y0 = torch.floor(x), torch.floor(y)
@@ -206,11 +203,7 @@ def flow_loss(flows_fw: list[torch.Tensor], flows_bw: list[torch.Tensor], img1: 
             l_sm = l_sm + smoothness(f21 / s, im2, cfg.alpha, cfg.smooth_2nd)
             total_sm = total_sm + w_sm * l_sm / 2
     loss = total_ph + cfg.w_smooth * total_sm
-    stats = {
-        "loss": float(loss.detach()),
-        "photometric": float(total_ph.detach()),
-        "smooth": float(total_sm.detach()),
-        "flow_mean": float(flows_fw[0].detach().abs().mean()),
-        "noc_fraction": float(noc1.mean()),
-    }
+    stats = {"loss": float(loss.detach()), "photometric": float(total_ph.detach()),
+             "smooth": float(total_sm.detach()), "flow_mean": float(flows_fw[0].detach().abs().mean()),
+             "noc_fraction": float(noc1.mean())}
     return loss, stats

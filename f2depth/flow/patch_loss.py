@@ -77,7 +77,7 @@ class FinetuneLossConfig:
     spacing: int = 2                  # N
     w_scales: tuple[float, ...] = (1.0,)  # photometric weight per flow level, finest first; missing = 0
     backward: bool = False            # also the backward term (ARFlow's with_bk), averaged with the forward
-    smooth_weight: float = 50.0       # λ = lambda_flow_smooth
+    smooth_weight: float = 50.0       # λ = loss_weights.flow_smooth
     alpha: float = 10.0               # edge-awareness of the smoothness weights (ARFlow)
     occlusion: str = "forward_backward"  # or "range_map" (ARFlow's warm-up check)
     fb_scale: float = 0.01            # forward–backward occlusion check (ARFlow)
@@ -261,13 +261,7 @@ def finetune_loss(flows_fw: torch.Tensor | Sequence[torch.Tensor],
     if cfg.backward:
         smooth = (smooth + smoothness(bw[0] / s, img2, cfg.alpha)) / 2
     loss = photometric + cfg.smooth_weight * smooth
-    stats = {
-        "loss": float(loss.detach()),
-        "photometric": float(photometric.detach()),
-        "smooth": float(smooth.detach()),
-        "pixels": finest.pixels / b,
-        "used_pixels": finest.used / b,
-        "coverage": finest.pixels / (b * h * w),
-        "noc_fraction": float(noc1.mean()),
-    }
+    stats = {"loss": float(loss.detach()), "photometric": float(photometric.detach()),
+             "smooth": float(smooth.detach()), "pixels": finest.pixels / b, "used_pixels": finest.used / b,
+             "coverage": finest.pixels / (b * h * w), "noc_fraction": float(noc1.mean())}
     return loss, stats

@@ -34,6 +34,9 @@ from f2depth.epochs import fingerprint as hash_settings
 from f2depth.flow.loss import SINTEL_FT, SINTEL_RAW, flow_loss
 from f2depth.flow.network import FlowNetwork, make_optimizer, msra_init
 
+HISTORY_COLUMNS = ("epoch", "loss", "photometric", "smooth", "flow_mean", "noc_fraction", "steps",
+                   "skipped_steps", "census", "seconds")
+
 
 @dataclass(frozen=True)
 class PretrainConfig:

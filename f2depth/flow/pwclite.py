@@ -19,8 +19,7 @@ from torch import nn
 
 from f2depth.flow.correlation import correlation
 from f2depth.flow.network import FlowNetwork
-from f2depth.flow.warp import warp
-from f2depth.geometry import resize_flow
+from f2depth.geometry import resize_flow, warp
 
 PYRAMID_CHANNELS = (16, 32, 64, 96, 128, 192)
 N_FLOWS = 5  # decoded levels: 1/64 ... 1/4
@@ -31,10 +30,8 @@ CORR_CHANNELS = 81
 def conv(ch_in: int, ch_out: int, kernel_size: int = 3, stride: int = 1, dilation: int = 1,
          relu: bool = True) -> nn.Sequential:
     """ARFlow's ``conv``: Conv2d (bias, 'same' padding) + LeakyReLU(0.1); the Sequential gives the ``.0.``."""
-    layers: list[nn.Module] = [
-        nn.Conv2d(ch_in, ch_out, kernel_size, stride, padding=((kernel_size - 1) * dilation) // 2,
-                  dilation=dilation, bias=True)
-    ]
+    layers: list[nn.Module] = [nn.Conv2d(ch_in, ch_out, kernel_size, stride, dilation=dilation, bias=True,
+                                         padding=((kernel_size - 1) * dilation) // 2)]
     if relu:
         layers.append(nn.LeakyReLU(0.1, inplace=True))
     return nn.Sequential(*layers)
@@ -45,10 +42,8 @@ class FeatureExtractor(nn.Module):
 
     def __init__(self, channels: tuple[int, ...] = (3, *PYRAMID_CHANNELS)) -> None:
         super().__init__()
-        self.convs = nn.ModuleList(
-            nn.Sequential(conv(c_in, c_out, stride=2), conv(c_out, c_out))
-            for c_in, c_out in zip(channels[:-1], channels[1:])
-        )
+        self.convs = nn.ModuleList(nn.Sequential(conv(c_in, c_out, stride=2), conv(c_out, c_out))
+                                   for c_in, c_out in zip(channels[:-1], channels[1:]))
 
     def forward(self, img: torch.Tensor) -> list[torch.Tensor]:
         """``img (B,3,H,W)`` → six maps, level i ``(B, C_i, ⌈H/2^(i+1)⌉, ⌈W/2^(i+1)⌉)``, finest first."""

@@ -14,7 +14,6 @@ import os
 from collections.abc import Sequence
 from pathlib import Path
 
-import cv2
 import numpy as np
 import torch
 
@@ -26,23 +25,20 @@ from f2depth.flow.network import FlowNetwork
 from f2depth.geometry import resize_flow
 
 
+def _flow(model: FlowNetwork, a: torch.Tensor, b: torch.Tensor, hw: tuple[int, int], device: str
+          ) -> torch.Tensor:
+    """Network input frames ``(1,3,h,w)`` in [0,1] → forward flow ``(1,2,H,W)`` resized to ``hw`` = (H, W)."""
+    return resize_flow(model(a.to(device), b.to(device), with_backward=False)[0][0], hw).cpu()
+
+
 @torch.no_grad()
-def predict(model: FlowNetwork, image1: np.ndarray, image2: np.ndarray, size: tuple[int, int] | None = None,
-            device: str = "cpu") -> torch.Tensor:
-    """RGB uint8 frames (H,W,3) → forward flow ``(1,2,H,W)`` in the frames' pixels (computed at ``size``)."""
-    h, w = image1.shape[:2]
-    a = resized_tensor(image1, size).unsqueeze(0).to(device)
-    b = resized_tensor(image2, size).unsqueeze(0).to(device)
-    flow = model(a, b, with_backward=False)[0][0]
-    return resize_flow(flow, (h, w)).cpu()
-
-
-def _score(model, acc, zero, image1, image2, gt, occluded, valid, size, device):
-    img = to_tensor(image1).unsqueeze(0)
-    low = low_texture_mask(img)
-    pred = predict(model, image1, image2, size, device)
+def _score(model, acc, zero, a, b, gt, occluded, low, valid, device) -> torch.Tensor:
+    """Score the flow of network inputs ``a, b (1,3,h,w)`` against ``gt (1,2,H,W)`` with the bool masks
+    ``occluded``, ``low`` (low texture of frame 1) and ``valid`` ``(1,1,H,W)`` (None: all)."""
+    hw = tuple(gt.shape[-2:])
+    pred = _flow(model, a, b, hw, device)
     acc.add(pred, gt, occluded, low, valid)
-    acc.add_swapped(pred, predict(model, image2, image1, size, device))
+    acc.add_swapped(pred, _flow(model, b, a, hw, device))
     zero.add(torch.zeros_like(gt), gt, occluded, low, valid)
     return pred
 
@@ -66,7 +62,9 @@ def evaluate_sintel(model: FlowNetwork, pairs: Sequence[SintelPair], size: tuple
             raise ValueError(f"evaluate_sintel: {pair.image1} has no flow/occlusion ground truth")
         gt = torch.from_numpy(d["flow"]).permute(2, 0, 1).unsqueeze(0)
         occ = torch.from_numpy(d["occluded"])[None, None]
-        pred = _score(model, acc, zero, d["image1"], d["image2"], gt, occ, None, size, device)
+        a, b = (resized_tensor(d[k], size).unsqueeze(0) for k in ("image1", "image2"))
+        low = low_texture_mask(to_tensor(d["image1"]).unsqueeze(0))
+        pred = _score(model, acc, zero, a, b, gt, occ, low, None, device)
         if figure_dir is not None and i in chosen:
             save_figure(Path(figure_dir) / f"{pair.sequence}_{pair.pass_name}_{pair.frame:04d}.png",
                         d["image1"], gt, pred)
@@ -81,29 +79,25 @@ def evaluate_prepared(model: FlowNetwork, prepared_root: str | os.PathLike, max_
     flow of frame 1's depth under the relative pose with the geometric K; occluded = hidden in frame 2 or
     leaving the image; pixels without depth are not scored). The network runs at the prepared size."""
     from f2depth.data.prepared import PreparedSet
-    from f2depth.flow.finetune_data import gt_pair, true_intrinsics
+    from f2depth.flow.finetune_data import gt_pairs, scored_pairs
 
     ds = PreparedSet(prepared_root)
-    pairs = [p for p in ds.pairs if ds.has_gt(p.frame1) and ds.has_gt(p.frame2)]
+    pairs = scored_pairs(ds, ds.pairs, max_pairs)
     if not pairs:
         return None
-    if max_pairs is not None and len(pairs) > max_pairs:
-        pairs = [pairs[int(i)] for i in np.linspace(0, len(pairs) - 1, max_pairs).round()]
     chosen = set(np.linspace(0, len(pairs) - 1, figures).round().astype(int).tolist()) if figures else set()
-    K = true_intrinsics(ds)
     acc, zero = EPEAccumulator(), EPEAccumulator()
-    for i, p in enumerate(pairs):
-        g = gt_pair(ds, p, K)
-        image1, image2 = ds.image(p.frame1), ds.image(p.frame2)
-        pred = _score(model, acc, zero, image1, image2, g.flow, g.occluded, g.valid, None, device)
+    for i, g in enumerate(gt_pairs(ds, pairs)):
+        pred = _score(model, acc, zero, g.img1, g.img2, g.flow, g.occluded, g.low_texture, g.valid, device)
         if figure_dir is not None and i in chosen:
-            save_figure(Path(figure_dir) / f"prepared_{p.pair_id}.png", image1, g.flow * g.valid, pred)
+            rgb = (g.img1[0].permute(1, 2, 0) * 255).round().to(torch.uint8).numpy()
+            save_figure(Path(figure_dir) / f"prepared_{g.pair_id}.png", rgb, g.flow * g.valid, pred)
     return _result(acc, zero, len(pairs))
 
 
 def save_figure(path: str | os.PathLike, image1: np.ndarray, gt: torch.Tensor, pred: torch.Tensor) -> None:
     """One row: frame 1 | ground truth | prediction (same colour scale) | end-point error (0–5 px, grey)."""
-    from f2depth.io import imwrite
+    from f2depth.io import write_rgb
 
     gt_np = gt[0].permute(1, 2, 0).numpy()
     pred_np = pred[0].permute(1, 2, 0).numpy()
@@ -111,4 +105,4 @@ def save_figure(path: str | os.PathLike, image1: np.ndarray, gt: torch.Tensor, p
     err = endpoint_error(pred, gt)[0, 0].numpy()
     err_img = np.repeat((np.clip(err / 5.0, 0, 1) * 255).astype(np.uint8)[..., None], 3, 2)
     row = np.concatenate([image1, flow_to_color(gt_np, scale), flow_to_color(pred_np, scale), err_img], 1)
-    imwrite(path, cv2.cvtColor(row, cv2.COLOR_RGB2BGR))
+    write_rgb(path, row)

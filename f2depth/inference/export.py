@@ -68,11 +68,9 @@ def _onnx_bytes(model: DepthModel, hw: tuple[int, int], opset: int) -> bytes:
         # deprecation, tracer and constant-folding notes say nothing about this graph
         warnings.simplefilter("ignore")
         try:
-            torch.onnx.export(
-                DepthNetwork(model).eval(), (dummy,), buf, dynamo=False, opset_version=opset,
-                input_names=[ONNX_INPUT], output_names=[ONNX_OUTPUT],
-                dynamic_axes={ONNX_INPUT: {0: "batch"}, ONNX_OUTPUT: {0: "batch"}},
-            )
+            torch.onnx.export(DepthNetwork(model).eval(), (dummy,), buf, dynamo=False, opset_version=opset,
+                              input_names=[ONNX_INPUT], output_names=[ONNX_OUTPUT],
+                              dynamic_axes={ONNX_INPUT: {0: "batch"}, ONNX_OUTPUT: {0: "batch"}})
         except RuntimeError as exc:  # the exporter's own errors (torch.onnx.OnnxExporterError is one)
             first = str(exc).strip().splitlines()[0][:200] if str(exc).strip() else type(exc).__name__
             raise ExportError(f"torch.onnx.export failed at {hw[0]}×{hw[1]}, opset {opset} ({first}); "
@@ -115,8 +113,7 @@ def export_onnx(model: DepthModel, path: str | os.PathLike, height: int | None =
         tmp.write_bytes(proto.SerializeToString())
         parity = parity_check(model, OnnxBackend(tmp))
         if not np.isfinite(parity.max_rel) or parity.max_rel > rtol:
-            raise ExportError(
-                f"{dest}: ONNX parity check failed: max |Δdepth| {parity.max_abs:.3g} m, relative "
-                f"{parity.max_rel:.3g} > {rtol:g}; nothing written (try another --opset)"
-            )
+            raise ExportError(f"{dest}: ONNX parity check failed: max |Δdepth| {parity.max_abs:.3g} m, "
+                              f"relative {parity.max_rel:.3g} > {rtol:g}; nothing written "
+                              "(try another --opset)")
     return parity

@@ -7,11 +7,7 @@ import importlib
 from types import ModuleType
 
 #: module → (pip extra of f2depth that provides it, extra hint for a failing import)
-EXTRAS = {
-    "onnx": ("onnx", ""),
-    "onnxruntime": ("onnx", ""),
-    "open3d": ("recon", ""),
-}
+EXTRAS = {"onnx": ("onnx", ""), "onnxruntime": ("onnx", ""), "open3d": ("recon", "")}
 _LIBUSB_HINT = "; open3d's wheel links libusb: on Debian/Ubuntu `apt-get install libusb-1.0-0`"
 
 
@@ -26,7 +22,5 @@ def require(module: str, purpose: str) -> ModuleType:
     except ImportError as exc:
         extra = EXTRAS.get(module, (module, ""))[0]
         hint = _LIBUSB_HINT if "libusb" in str(exc) else ""
-        raise MissingDependency(
-            f"{purpose} needs the optional package '{module}', which cannot be imported ({exc}); "
-            f"install it with `pip install 'f2depth[{extra}]'`{hint}"
-        ) from None
+        raise MissingDependency(f"{purpose} needs the optional package '{module}', which cannot be imported "
+                                f"({exc}); install it with `pip install 'f2depth[{extra}]'`{hint}") from None

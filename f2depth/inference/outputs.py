@@ -27,9 +27,8 @@ SUFFIXES = {"mm": "_depth_mm.png", "npy": "_depth.npy", "color": "_depth_color.p
 MM_MAX = 65535
 #: horizontal focal length per image width of the NYU Depth V2 RGB camera (the training data)
 NYU_FX_PER_WIDTH = float(NYU_RGB_K[0, 0]) / NYU_SIZE_HW[1]
-_PLY_DTYPE = np.dtype(
-    [("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1"), ("green", "u1"), ("blue", "u1")]
-)
+_PLY_DTYPE = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1"), ("green", "u1"),
+                       ("blue", "u1")])
 
 
 def depth_to_mm(depth: np.ndarray) -> np.ndarray:
@@ -94,28 +93,10 @@ def encode_ply(points: np.ndarray, colours: np.ndarray) -> bytes:
         verts[axis] = points[:, i]
     for i, channel in enumerate(("red", "green", "blue")):
         verts[channel] = colours[:, i]
-    header = (
-        "ply\nformat binary_little_endian 1.0\ncomment written by f2depth predict\n"
-        f"element vertex {n}\nproperty float x\nproperty float y\nproperty float z\n"
-        "property uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n"
-    )
+    header = ("ply\nformat binary_little_endian 1.0\ncomment written by f2depth predict\n"
+              f"element vertex {n}\nproperty float x\nproperty float y\nproperty float z\n"
+              "property uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n")
     return header.encode("ascii") + verts.tobytes()
-
-
-def read_ply_points(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
-    """Read a point cloud written by :func:`encode_ply` → (points (N,3) float32, colours (N,3) uint8)."""
-    data = Path(path).read_bytes()
-    end = data.find(b"end_header\n")
-    if not data.startswith(b"ply\n") or end < 0:
-        raise ValueError(f"{path}: not a PLY file")
-    header = data[:end].decode("ascii").splitlines()
-    if "format binary_little_endian 1.0" not in header:
-        raise ValueError(f"{path}: only binary little-endian PLY is read here")
-    n = next(int(line.split()[2]) for line in header if line.startswith("element vertex"))
-    verts = np.frombuffer(data, _PLY_DTYPE, count=n, offset=end + len(b"end_header\n"))
-    points = np.stack([verts[a] for a in "xyz"], axis=1)
-    colours = np.stack([verts[c] for c in ("red", "green", "blue")], axis=1)
-    return points, colours
 
 
 def check_output_folder(folder: str | os.PathLike, option: str = "--output") -> Path:

@@ -46,15 +46,12 @@ class Predictor:
         self.post_process = post_process
         self.upsample = upsample
 
-    def _disp(self, img: torch.Tensor) -> torch.Tensor:
-        """img (B,3,h,w) → scaled disparity 1/depth (B,1,h,w)."""
-        return 1.0 / self.backend.depth(img)
-
     def disparity(self, rgbs: Sequence[np.ndarray]) -> torch.Tensor:
         """RGB uint8 images (H_i,W_i,3) → disparity (B,1,h,w) at the network size (CPU)."""
         x = torch.stack([to_input(np.asarray(r), self.backend.input_hw) for r in rgbs])
-        with torch.inference_mode():
-            return predict_disparity(self._disp, x, post_process=self.post_process)
+        with torch.inference_mode():  # the backend's scaled disparity is 1/depth
+            return predict_disparity(lambda img: 1.0 / self.backend.depth(img), x,
+                                     post_process=self.post_process)
 
     def predict(self, rgbs: Sequence[np.ndarray], origins: Sequence[str] | None = None) -> list[np.ndarray]:
         """RGB uint8 images (H_i,W_i,3), sizes may differ → depth (H_i,W_i) float32 per image (relative).
@@ -132,15 +129,9 @@ def run_predict(frames: Iterable[Frame], predictor: Predictor, settings: Predict
         warnings.append(f"{input_desc or 'the input'}: only {count} of the {total} frames its container "
                         f"announces could be decoded (a truncated or damaged file?); wrote those {count}")
     summary = {
-        "input": input_desc,
-        "frames": count,
-        "frames_expected": total,
-        "backend": predictor.backend.name,
-        "model": predictor.backend.source,
-        "network_hw": list(predictor.backend.input_hw),
-        "post_process": predictor.post_process,
-        "upsample": predictor.upsample,
-        "scale": scale,
+        "input": input_desc, "frames": count, "frames_expected": total, "backend": predictor.backend.name,
+        "model": predictor.backend.source, "network_hw": list(predictor.backend.input_hw),
+        "post_process": predictor.post_process, "upsample": predictor.upsample, "scale": scale,
         "scale_source": ("median ratio to " + str(settings.scale_from) + " on " + str(first_origin)
                          if reference is not None else "--scale" if settings.scale is not None else "none"),
         "metric": reference is not None or settings.scale is not None,

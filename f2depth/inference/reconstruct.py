@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import os
 import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -65,11 +65,11 @@ class TSDFFusion:
         o3d = _o3d()
         self.o3d, self.settings = o3d, settings
         f32 = o3d.core.float32
-        self.grid = o3d.t.geometry.VoxelBlockGrid(
-            attr_names=("tsdf", "weight", "color"), attr_dtypes=(f32, f32, f32), attr_channels=(1, 1, 3),
-            voxel_size=settings.voxel, block_resolution=self.BLOCK_RESOLUTION, block_count=1000,
-            device=o3d.core.Device("CPU:0"),
-        )
+        self.grid = o3d.t.geometry.VoxelBlockGrid(attr_names=("tsdf", "weight", "color"),
+                                                  attr_dtypes=(f32, f32, f32), attr_channels=(1, 1, 3),
+                                                  voxel_size=settings.voxel,
+                                                  block_resolution=self.BLOCK_RESOLUTION, block_count=1000,
+                                                  device=o3d.core.Device("CPU:0"))
         self.frames = 0
 
     def integrate(self, rgb: np.ndarray, depth: np.ndarray, K: np.ndarray, world_T_cam: np.ndarray) -> None:
@@ -216,7 +216,8 @@ def reconstruct(frames: Sequence[SequenceFrame], predictor: Predictor | None,
                           s.scale if s.depth_source == "predicted" else 1.0)
     fused = TSDFFusion(s.tsdf)
     ref_fused = TSDFFusion(s.tsdf) if with_ref else None
-    for f, depth, k in zip(frames, depths, _iter_progress(scales, s.progress)):
+    for f, depth, k in zip(frames, depths, tqdm(list(scales), desc="fuse", unit="frame",
+                                                disable=None if s.progress is None else not s.progress)):
         rgb = f.rgb()
         fused.integrate(rgb, depth * np.float32(k), f.K, f.world_T_cam)
         if ref_fused is not None:
@@ -246,9 +247,4 @@ def reconstruct(frames: Sequence[SequenceFrame], predictor: Predictor | None,
             summary["metrics"] = mesh_metrics(mesh, ref_mesh, threshold=s.threshold)
     summary["seconds"] = time.perf_counter() - t0
     return summary
-
-
-def _iter_progress(items: Iterable[float], progress: bool | None) -> Iterable[float]:
-    items = list(items)
-    return tqdm(items, desc="fuse", unit="frame", disable=None if progress is None else not progress)
 

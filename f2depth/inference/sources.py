@@ -21,9 +21,8 @@ from f2depth.data.errors import DataError
 from f2depth.data.images import read_image
 
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".jpe", ".bmp", ".ppm", ".pgm", ".pnm", ".tif", ".tiff", ".webp")
-VIDEO_EXTENSIONS = (
-    ".avi", ".mp4", ".mov", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg", ".wmv", ".mjpg", ".mjpeg"
-)
+VIDEO_EXTENSIONS = (".avi", ".mp4", ".mov", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg", ".wmv", ".mjpg",
+                    ".mjpeg")
 _FIX_IMAGE = "replace the file or remove it from the input"
 _FIX_VIDEO = "check that the file is a complete video that FFmpeg can decode (e.g. MJPG .avi, H.264 .mp4)"
 
@@ -69,10 +68,8 @@ def list_images(folder: str | os.PathLike) -> list[Path]:
     """Images directly inside ``folder`` with a supported extension, sorted by name (hidden files and
     other extensions ignored). None → DataError."""
     root = Path(folder)
-    files = sorted(
-        p for p in root.iterdir()
-        if p.is_file() and not p.name.startswith(".") and p.suffix.lower() in IMAGE_EXTENSIONS
-    )
+    files = sorted(p for p in root.iterdir()
+                   if p.is_file() and not p.name.startswith(".") and p.suffix.lower() in IMAGE_EXTENSIONS)
     if not files:
         raise DataError(root, f"no images in this folder (supported: {' '.join(IMAGE_EXTENSIONS)})",
                         "point --input at a folder of images, an image or a video")

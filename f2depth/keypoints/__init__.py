@@ -1,24 +1,20 @@
 """DSO's pixel selector (Engel et al., TPAMI 2018; DSO's ``PixelSelector2.cpp``) and keypoint files.
 
-``select_pixels(gray, preset="dso", **overrides)`` and ``select_raw(gray, pot, direction)`` select;
-``KeypointFile(path).tensor(frame_index)`` and ``fill_up(points, count, H, W, generator)`` serve the losses.
-See docs/keypoints.md.
+``select_pixels(gray, preset="dso", **overrides)`` and ``KeypointSelector`` select
+(:mod:`~f2depth.keypoints.api`); ``KeypointFile(path).tensor(frame_index)`` and ``fill_up(points, count, H,
+W, generator)`` serve the losses (:mod:`~f2depth.keypoints.store`). See docs/keypoints.md. The names below
+are imported from their module on first use, so importing one module of this package loads no other.
 """
 
-from f2depth.keypoints.api import KeypointSelector, rescale_points, select_pixels, select_raw
-from f2depth.keypoints.presets import PRESETS, Preset, get_preset
-from f2depth.keypoints.store import KeypointFile, KeypointFileError, fill_up, save_keypoints
+import importlib
 
-__all__ = [
-    "PRESETS",
-    "KeypointFile",
-    "KeypointFileError",
-    "KeypointSelector",
-    "Preset",
-    "fill_up",
-    "get_preset",
-    "rescale_points",
-    "save_keypoints",
-    "select_pixels",
-    "select_raw",
-]
+_HOMES = {"select_pixels": "api", "KeypointSelector": "api", "rescale_points": "api",
+          "PRESETS": "presets", "Preset": "presets", "get_preset": "presets", "KeypointFile": "store",
+          "KeypointFileError": "store", "fill_up": "store", "save_keypoints": "store"}
+__all__ = sorted(_HOMES)
+
+
+def __getattr__(name: str):
+    if name not in _HOMES:
+        raise AttributeError(f"module 'f2depth.keypoints' has no attribute {name!r}")
+    return getattr(importlib.import_module(f"f2depth.keypoints.{_HOMES[name]}"), name)

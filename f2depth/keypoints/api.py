@@ -1,5 +1,5 @@
-"""Public selector API: ``select_pixels`` (a fresh selector per image), ``KeypointSelector`` (pot carried
-over a sequence, as DSO's persistent selector), ``select_raw`` (select() alone)."""
+"""Public selector API: ``select_pixels`` (a fresh selector per image) and ``KeypointSelector`` (pot carried
+over a sequence, as DSO's persistent selector)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import numpy as np
 
 from f2depth.keypoints.makemaps import MapsResult, make_maps
 from f2depth.keypoints.presets import Preset, get_preset
-from f2depth.keypoints.select import prepare, select
+from f2depth.keypoints.select import prepare
 
 
 def _check_gray(gray: np.ndarray) -> np.ndarray:
@@ -84,8 +84,3 @@ def select_pixels(gray: np.ndarray, preset: str | Preset = "dso", out_hw: tuple[
     """
     return KeypointSelector(preset, **overrides)(gray, out_hw)
 
-
-def select_raw(gray: np.ndarray, pot: int, direction: bool = True) -> np.ndarray:
-    """DSO's select() alone at cell size ``pot``: no adaptation, no thinning; (N, 3) x, y, level."""
-    points, _ = select(prepare(_check_gray(gray), direction=direction), int(pot))
-    return points

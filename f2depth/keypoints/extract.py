@@ -18,7 +18,6 @@ one task per scene); otherwise every frame gets a fresh selector (P²Net).
 
 from __future__ import annotations
 
-import multiprocessing
 import os
 import time
 from collections.abc import Mapping
@@ -28,7 +27,6 @@ from typing import Any
 
 import cv2
 import numpy as np
-from tqdm import tqdm
 
 from f2depth.camera import NYU_SIZE_HW
 from f2depth.data.errors import DataError
@@ -36,11 +34,12 @@ from f2depth.data.images import read_image
 from f2depth.data.nyu_raw import read_frame
 from f2depth.data.prepare import resize_image, undistort_crop
 from f2depth.data.prepared import PreparedSet
-from f2depth.io import imwrite
+from f2depth.io import write_rgb
 from f2depth.keypoints.api import KeypointSelector
 from f2depth.keypoints.overlay import draw_keypoints
 from f2depth.keypoints.presets import get_preset
 from f2depth.keypoints.store import save_keypoints
+from f2depth.workers import map_jobs
 
 CHUNK = 8  # frames per task without ``sequence``
 NYU_H, NYU_W = NYU_SIZE_HW
@@ -86,10 +85,6 @@ class _Task:
     interpolation: str = "area"  # prepare's filter (camera.json), for the raw-vs-prepared check
 
 
-def _init_worker() -> None:
-    cv2.setNumThreads(1)
-
-
 def _select_task(task: _Task) -> list[tuple[np.ndarray, float | None]]:
     """(keypoints (n, 3) int16 at the training size, raw-vs-prepared mismatch or None) of each frame."""
     selector = KeypointSelector(task.preset, **task.options)
@@ -118,11 +113,9 @@ def _summary(counts: np.ndarray, points: list[np.ndarray]) -> dict[str, Any]:
         levels = np.bincount(np.concatenate([p[:, 2] for p in points]).astype(np.int64), minlength=3)
     duplicates = sum(len(p) - len(np.unique(p[:, :2], axis=0)) for p in points if len(p))
     return {
-        "points_per_image": {
-            "mean": float(counts.mean()) if len(counts) else 0.0,
-            "min": int(counts.min()) if len(counts) else 0,
-            "max": int(counts.max()) if len(counts) else 0,
-        },
+        "points_per_image": {"mean": float(counts.mean()) if len(counts) else 0.0,
+                             "min": int(counts.min()) if len(counts) else 0,
+                             "max": int(counts.max()) if len(counts) else 0},
         "share_below_100": float((counts < 100).mean()) if len(counts) else 0.0,
         "empty_frames": int((counts == 0).sum()),
         "level_shares": [float(v / total) if total else 0.0 for v in levels[:3]],
@@ -130,19 +123,11 @@ def _summary(counts: np.ndarray, points: list[np.ndarray]) -> dict[str, Any]:
     }
 
 
-def extract_keypoints(
-    prepared: str | os.PathLike,
-    out_file: str | os.PathLike,
-    overlay_dir: str | os.PathLike | None,
-    preset: str,
-    options: Mapping[str, Any] | None = None,
-    workers: int = 1,
-    sequence: bool = False,
-    overlays: int = 0,
-    progress: bool = True,
-    source: str = "full_resolution",
-    nyu_raw: str | os.PathLike | None = None,
-) -> dict[str, Any]:
+def extract_keypoints(prepared: str | os.PathLike, out_file: str | os.PathLike,
+                      overlay_dir: str | os.PathLike | None, preset: str,
+                      options: Mapping[str, Any] | None = None, workers: int = 1, sequence: bool = False,
+                      overlays: int = 0, progress: bool = True, source: str = "full_resolution",
+                      nyu_raw: str | os.PathLike | None = None) -> dict[str, Any]:
     """Select keypoints on every frame of ``prepared``, write ``out_file`` and overlays; return metrics.
 
     ``source`` ``full_resolution`` (needs ``nyu_raw``, the folder frames.csv's ``raw_file`` is relative
@@ -172,20 +157,11 @@ def extract_keypoints(
                    source, data.interpolation) for g in index_groups]
     points = [np.zeros((0, 3), np.int16)] * len(frames)
     mismatch: list[float | None] = [None] * len(frames)
-    with tqdm(total=len(frames), desc=f"keypoints ({preset})", unit="frame", disable=not progress) as bar:
-        if workers > 1 and len(tasks) > 1:
-            n_proc = min(workers, len(tasks))
-            with multiprocessing.get_context().Pool(n_proc, initializer=_init_worker) as pool:
-                results = pool.imap(_select_task, tasks)
-                for group, res in zip(index_groups, results):
-                    for i, (p, m) in zip(group, res):
-                        points[i], mismatch[i] = p, m
-                    bar.update(len(group))
-        else:
-            for group, task in zip(index_groups, tasks):
-                for i, (p, m) in zip(group, _select_task(task)):
-                    points[i], mismatch[i] = p, m
-                bar.update(len(group))
+    results = map_jobs(_select_task, tasks, workers, f"keypoints ({preset})", progress,
+                       size=lambda t: len(t.images))
+    for group, res in zip(index_groups, results):
+        for i, (p, m) in zip(group, res):
+            points[i], mismatch[i] = p, m
     frame_ids = [data.frame_index(f.frame_id) for f in frames]
     save_keypoints(out_file, frame_ids, points)
     written = []
@@ -196,21 +172,14 @@ def extract_keypoints(
         for i in sorted({int(round(v)) for v in picks}):
             picture = draw_keypoints(read_image(paths[i], data.hw), points[i])
             target = Path(overlay_dir) / f"{frames[i].frame_id}.png"
-            imwrite(target, cv2.cvtColor(picture, cv2.COLOR_RGB2BGR))
+            write_rgb(target, picture)
             written.append(str(target))
     counts = np.array([len(p) for p in points], np.int64)
     checked = [m for m in mismatch if m is not None]
-    return {
-        "preset": preset,
-        "options": {k: v for k, v in vars(config).items() if k != "name"},
-        "source": source,
-        "selector_input": [NYU_H - 2 * crop, NYU_W - 2 * crop] if full else list(data.hw),
-        "sequence": bool(sequence),
-        "frames": len(frames),
-        "size": list(data.hw),
-        **_summary(counts, points),
-        "raw_vs_prepared_max_diff": round(max(checked), 4) if checked else None,
-        "overlays": len(written),
-        "workers": int(workers),
-        "seconds": round(time.perf_counter() - start, 3),
-    }
+    return {"preset": preset, "options": {k: v for k, v in vars(config).items() if k != "name"},
+            "source": source,
+            "selector_input": [NYU_H - 2 * crop, NYU_W - 2 * crop] if full else list(data.hw),
+            "sequence": bool(sequence), "frames": len(frames), "size": list(data.hw),
+            **_summary(counts, points),
+            "raw_vs_prepared_max_diff": round(max(checked), 4) if checked else None, "overlays": len(written),
+            "workers": int(workers), "seconds": round(time.perf_counter() - start, 3)}

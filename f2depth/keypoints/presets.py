@@ -48,9 +48,8 @@ PRESETS: dict[str, Preset] = {
     # P²Net (its datasets/nyu_dataset.py, extract_svo_point.py, main2.cpp): grey 640×480,
     # makeMaps(2000, recursions 3), no direction test, at most 2500 points, rescaled to the training
     # size with integer arithmetic; duplicates kept.
-    "p2net": Preset(
-        "p2net", density=2000, recursions=3, direction=False, work_size=(480, 640), max_points=2500
-    ),
+    "p2net": Preset("p2net", density=2000, recursions=3, direction=False, work_size=(480, 640),
+                    max_points=2500),
 }
 
 

@@ -28,12 +28,9 @@ from f2depth.keypoints.thresholds import BLOCK, make_hists, pixel_thresholds
 
 # DSO's 16 directions, as its float literals (PixelSelector2.cpp).
 DIRECTIONS = np.array(
-    [
-        (0.0, 1.0000), (0.3827, 0.9239), (0.1951, 0.9808), (0.9239, 0.3827),
-        (0.7071, 0.7071), (0.3827, -0.9239), (0.8315, 0.5556), (0.8315, -0.5556),
-        (0.5556, -0.8315), (0.9808, 0.1951), (0.9239, -0.3827), (0.7071, -0.7071),
-        (0.5556, 0.8315), (0.9808, -0.1951), (1.0000, 0.0000), (0.1951, -0.9808),
-    ],
+    [(0.0, 1.0000), (0.3827, 0.9239), (0.1951, 0.9808), (0.9239, 0.3827), (0.7071, 0.7071), (0.3827, -0.9239),
+     (0.8315, 0.5556), (0.8315, -0.5556), (0.5556, -0.8315), (0.9808, 0.1951), (0.9239, -0.3827),
+     (0.7071, -0.7071), (0.5556, 0.8315), (0.9808, -0.1951), (1.0000, 0.0000), (0.1951, -0.9808)],
     dtype=np.float32,
 )  # fmt: skip
 DOWNWEIGHT = np.float32(0.75)  # setting_gradDownweightPerLevel; TH1 = TH0·0.75, TH2 = TH1·0.75²
@@ -63,13 +60,6 @@ class Prepared:
 def valid_box(height: int, width: int) -> tuple[slice, slice]:
     """Rows and columns DSO's select() looks at: 4 ≤ y ≤ h−4 and 4 ≤ x ≤ w−6."""
     return slice(4, max(height - 3, 4)), slice(4, max(width - 5, 4))
-
-
-def valid_region(height: int, width: int) -> np.ndarray:
-    """The valid pixels of :func:`valid_box` as a (h, w) bool mask."""
-    valid = np.zeros((height, width), bool)
-    valid[valid_box(height, width)] = True
-    return valid
 
 
 def _outside(array: np.ndarray, box: tuple[slice, slice], value) -> None:
@@ -124,9 +114,8 @@ def direction_zero_mask(dx: np.ndarray, dy: np.ndarray, half_integer: bool) -> n
     return mask
 
 
-def prepare(
-    gray: np.ndarray, th_factor: float = 1.0, direction: bool = True, hist_add: float = 7.0
-) -> Prepared:
+def prepare(gray: np.ndarray, th_factor: float = 1.0, direction: bool = True,
+            hist_add: float = 7.0) -> Prepared:
     """Pyramid, gradients, thresholds and candidates of a grey image (h, w), uint8 or float32.
 
     Level-L tests ``ag_L > TH_L·th_factor`` are done on level L's own grid (TH_L is constant over the
@@ -294,9 +283,8 @@ def select(prep: Prepared, pot: int) -> tuple[np.ndarray, tuple[int, int, int]]:
         rows2 = np.flatnonzero(~taken2.reshape(-1, 4).any(axis=1))
         arg2, val2 = _best(rec[:, 2].reshape(-1, c4)[rows2])
     keep1, keep2 = val1 > 0, val2 > 0
-    visit = np.concatenate(
-        [rows0 * c1 + arg0, rows1[keep1] * c2 + arg1[keep1], rows2[keep2] * c4 + arg2[keep2]]
-    )
+    visit = np.concatenate([rows0 * c1 + arg0, rows1[keep1] * c2 + arg1[keep1],
+                            rows2[keep2] * c4 + arg2[keep2]])
     counts = (int(rows0.size), int(keep1.sum()), int(keep2.sum()))
     level = np.repeat(np.arange(3), counts)
     x, y = _decode(visit, d, -(-w // (4 * d)))

@@ -36,11 +36,8 @@ def pack(frame_ids: Sequence[int], points: Sequence[np.ndarray]) -> dict[str, np
                        or p.max() > np.iinfo(np.int16).max):
             raise ValueError(f"points must be (n, 3) x, y, level within int16, got shape {p.shape}")
     stacked = np.concatenate([np.asarray(p).reshape(-1, 3) for p in points]) if points else np.zeros((0, 3))
-    return {
-        "frame_ids": np.asarray(frame_ids, np.int64),
-        "offsets": offsets,
-        "points": stacked.astype(np.int16).reshape(-1, 3),
-    }
+    return {"frame_ids": np.asarray(frame_ids, np.int64), "offsets": offsets,
+            "points": stacked.astype(np.int16).reshape(-1, 3)}
 
 
 def save_keypoints(path: str | os.PathLike, frame_ids: Sequence[int], points: Sequence[np.ndarray]) -> None:
@@ -98,10 +95,6 @@ class KeypointFile:
 
         return torch.from_numpy(self.points(frame_id).astype(np.int64))
 
-    def counts(self) -> np.ndarray:
-        """Points per frame, (N,) int64, in file order."""
-        return np.diff(self.offsets)
-
     def check_inside(self, height: int, width: int) -> None:
         """KeypointFileError when any point lies outside the ``height`` × ``width`` training grid (x in
         [0, width), y in [0, height)), with the count and the first frame. The losses would otherwise
@@ -113,11 +106,10 @@ class KeypointFile:
         first = int(np.flatnonzero(outside)[0])
         row = int(np.searchsorted(self.offsets, first, side="right")) - 1
         frames = np.unique(np.searchsorted(self.offsets, np.flatnonzero(outside), side="right") - 1)
-        raise KeypointFileError(
-            f"{self.path}: {int(outside.sum())} of {len(self._points)} keypoints in {len(frames)} frame(s) "
-            f"lie outside the {width}×{height} training images (first: frame {int(self.frame_ids[row])} at x="
-            f"{int(x[first])}, y={int(y[first])}); the file was made for another size: {_FIX}"
-        )
+        raise KeypointFileError(f"{self.path}: {int(outside.sum())} of {len(self._points)} keypoints in "
+                                f"{len(frames)} frame(s) lie outside the {width}×{height} training images "
+                                f"(first: frame {int(self.frame_ids[row])} at x={int(x[first])}, "
+                                f"y={int(y[first])}); the file was made for another size: {_FIX}")
 
 
 def fill_up(points, count: int, height: int, width: int, generator=0):

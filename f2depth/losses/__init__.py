@@ -5,10 +5,9 @@ from f2depth.losses.photometric import patch_photometric_errors, patch_photometr
 from f2depth.losses.planar import fit_planes, planar_depth, planar_loss
 from f2depth.losses.smoothness import edge_aware_smoothness
 from f2depth.losses.ssim import ssim_dense, ssim_samples
-from f2depth.losses.total import LossWeights, NonFiniteLossError, check_finite, total_loss
+from f2depth.losses.total import NonFiniteLossError, check_finite, total_loss
 
 __all__ = [
-    "LossWeights",
     "NonFiniteLossError",
     "check_finite",
     "edge_aware_smoothness",

@@ -1,14 +1,18 @@
-"""L_depth = L_ph + λ1·L_sm + λ2·L_spp + λ_rigid·L_rigid + λ3·L_feature, and a NaN/inf guard."""
+"""L_depth = L_ph + Σ weight[term]·L_term, and a NaN/inf guard.
+
+The paper's eq. (11), L_ph + λ1·L_sm + λ2·L_spp + L_rigid + λ3·L_feature, with each λ under the name of its
+term (params.yaml ``loss_weights``: smooth, planar, rigid, feature); terms and weights are matched by name.
+"""
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from collections.abc import Mapping
 
 import torch
 
-#: Term names, in logging order, and the weight attribute of each (None = weight 1).
-TERMS = {"ph": None, "sm": "lambda1", "spp": "lambda2", "rigid": "lambda_rigid", "feature": "lambda3"}
+#: The unweighted term every sum has: P²Net's photometric loss L_ph (weight 1).
+PHOTOMETRIC = "ph"
 
 
 class NonFiniteLossError(FloatingPointError):
@@ -24,50 +28,39 @@ class NonFiniteLossError(FloatingPointError):
         )
 
 
-@dataclass(frozen=True)
-class LossWeights:
-    """Weights of L_depth (params.yaml top level: lambda1, lambda2, lambda3, lambda_rigid)."""
-
-    lambda1: float = 0.001
-    lambda2: float = 0.05
-    lambda3: float = 3.0
-    lambda_rigid: float = 1.0
-
-    def weight(self, term: str) -> float:
-        if term not in TERMS:
-            raise KeyError(f"unknown loss term {term!r}; known: {list(TERMS)}")
-        attr = TERMS[term]
-        return 1.0 if attr is None else float(getattr(self, attr))
-
-
-def check_finite(terms: dict[str, torch.Tensor | float], context: str = "") -> None:
-    """Raise NonFiniteLossError naming the first term (in TERMS order, then the rest) that is NaN/inf."""
-    ordered = [k for k in TERMS if k in terms] + [k for k in terms if k not in TERMS]
-    for name in ordered:
-        value = terms[name]
+def check_finite(terms: Mapping[str, torch.Tensor | float], context: str = "") -> None:
+    """Raise NonFiniteLossError naming the first term (in the order given) that is NaN/inf."""
+    for name, value in terms.items():
         v = float(value.detach()) if isinstance(value, torch.Tensor) else float(value)
         if not math.isfinite(v):
             raise NonFiniteLossError(name, v, context)
 
 
 def total_loss(
-    terms: dict[str, torch.Tensor], weights: LossWeights, context: str = ""
+    terms: Mapping[str, torch.Tensor], weights: Mapping[str, float], context: str = ""
 ) -> tuple[torch.Tensor, dict[str, float]]:
-    """Weighted sum of the given terms → (loss, {term: float, ..., "total": float}).
+    """L_ph + Σ weights[name]·terms[name] → (loss, {term: float, ..., "total": float}).
 
-    ``terms`` holds scalar tensors named from TERMS ("ph" required); a term may be left out only if its
-    weight is 0 (e.g. no flow losses for the P²Net baseline). Checks every term with ``check_finite``.
+    ``terms`` holds scalar tensors by name, the photometric term ``"ph"`` (weight 1) required; every other
+    term needs a weight in ``weights`` (term → weight, params.yaml ``loss_weights``). A term whose weight is 0
+    is logged but left out of the sum; a weighted term may be left out of ``terms`` only if its weight is 0
+    (e.g. no flow losses for the P²Net baseline). Terms are summed in the order of ``terms``. Checks every
+    term with ``check_finite``.
     """
-    unknown = sorted(set(terms) - set(TERMS))
-    if unknown:
-        raise KeyError(f"unknown loss terms {unknown}; known: {list(TERMS)}")
-    if "ph" not in terms:
-        raise KeyError("the photometric term 'ph' is required")
-    absent = [t for t in TERMS if t not in terms and weights.weight(t) != 0.0]
+    if PHOTOMETRIC not in terms:
+        raise KeyError(f"the photometric term {PHOTOMETRIC!r} is required")
+    unweighted = [name for name in terms if name != PHOTOMETRIC and name not in weights]
+    if unweighted:
+        raise KeyError(f"loss terms {unweighted} have no weight; give each one (params.yaml loss_weights)")
+    absent = [name for name, w in weights.items() if name not in terms and w != 0.0]
     if absent:
         raise KeyError(f"loss terms {absent} have non-zero weights but were not computed")
     check_finite(terms, context)
-    loss = sum(weights.weight(name) * value for name, value in terms.items() if weights.weight(name) != 0.0)
+
+    def weight(name: str) -> float:
+        return 1.0 if name == PHOTOMETRIC else float(weights[name])
+
+    loss = sum(weight(name) * value for name, value in terms.items() if weight(name) != 0.0)
     logs = {name: float(value.detach()) for name, value in terms.items()}
     logs["total"] = float(loss.detach())
     if not math.isfinite(logs["total"]):

@@ -7,9 +7,3 @@ residual pose.
 → ``estimate`` (per scene, the priors of the training pairs) → ``store`` (``data/poses``, docs/formats.md);
 ``metrics`` scores them against the synthetic ground truth.
 """
-
-from f2depth.poses.estimate import PairPrior, PosesConfig, ScenePoses, estimate_scenes, tuple_priors
-from f2depth.poses.store import PosePriors, TuplePrior, write_poses
-
-__all__ = ["PairPrior", "PosePriors", "PosesConfig", "ScenePoses", "TuplePrior", "estimate_scenes",
-           "tuple_priors", "write_poses"]

@@ -66,19 +66,9 @@ class BundleResult:
     iterations: int
 
 
-def bundle_adjust(
-    K: np.ndarray,
-    R: np.ndarray,
-    t: np.ndarray,
-    X: np.ndarray,
-    cam: np.ndarray,
-    point: np.ndarray,
-    uv: np.ndarray,
-    fixed: tuple[int, ...] = (0,),
-    huber_px: float = 1.0,
-    iterations: int = 30,
-    tolerance: float = 1e-9,
-) -> BundleResult:
+def bundle_adjust(K: np.ndarray, R: np.ndarray, t: np.ndarray, X: np.ndarray, cam: np.ndarray,
+                  point: np.ndarray, uv: np.ndarray, fixed: tuple[int, ...] = (0,), huber_px: float = 1.0,
+                  iterations: int = 30, tolerance: float = 1e-9) -> BundleResult:
     """Minimise the Huber reprojection cost of observations ``uv`` (M,2) of points ``point`` (M,) by cameras
     ``cam`` (M,) over the free cameras and all points. Every point must lie in front of its cameras at the
     start; steps that would put one behind a camera are rejected like steps that raise the cost."""

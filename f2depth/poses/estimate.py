@@ -19,8 +19,7 @@ pose alone. A scene without an initial pair (textureless) registers no frame and
 
 from __future__ import annotations
 
-import concurrent.futures as cf
-import multiprocessing
+import functools
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -34,6 +33,7 @@ from f2depth.data.nyu_raw import list_frames, read_frame
 from f2depth.data.prepared import PreparedSet
 from f2depth.poses.reconstruct import ReconstructConfig, reconstruct
 from f2depth.poses.tracks import TrackerConfig, track_corners, valid_region
+from f2depth.workers import map_jobs
 
 
 @dataclass(frozen=True)
@@ -81,8 +81,9 @@ class ScenePoses:
 
     def relative(self, target: int, source: int) -> np.ndarray:
         """source_T_target (4,4) = (world_T_source)⁻¹ · world_T_target (NaN unless both registered)."""
-        return np.linalg.inv(self.world_T_cam[source]) @ self.world_T_cam[target] if self.registered[
-            [target, source]].all() else np.full((4, 4), np.nan)
+        if not self.registered[[target, source]].all():
+            return np.full((4, 4), np.nan)
+        return np.linalg.inv(self.world_T_cam[source]) @ self.world_T_cam[target]
 
 
 def load_grey_frames(paths: list[Path]) -> list[np.ndarray]:
@@ -100,12 +101,10 @@ def estimate_scene(nyu_raw: str | Path, scene: str, config: PosesConfig) -> Scen
     rec = reconstruct(tracks, NYU_RGB_K, config.reconstruct).normalised(config.median_depth, NYU_SIZE_HW)
     world_T_cam = np.full_like(rec.cam_T_world, np.nan)
     world_T_cam[rec.registered] = np.linalg.inv(rec.cam_T_world[rec.registered])
-    return ScenePoses(
-        scene=scene, raw_files=[f"{scene}/{f.path.name}" for f in frames], world_T_cam=world_T_cam,
-        registered=rec.registered, shared=rec.shared_points(),
-        points=int((~np.isnan(rec.points[:, 0])).sum()),
-        tracks=tracks.n_tracks, seconds=round(time.perf_counter() - t0, 2),
-    )  # fmt: skip
+    return ScenePoses(scene=scene, raw_files=[f"{scene}/{f.path.name}" for f in frames],
+                      world_T_cam=world_T_cam, registered=rec.registered, shared=rec.shared_points(),
+                      points=int((~np.isnan(rec.points[:, 0])).sum()), tracks=tracks.n_tracks,
+                      seconds=round(time.perf_counter() - t0, 2))  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -137,25 +136,11 @@ def tuple_priors(prepared: PreparedSet, scenes: dict[str, ScenePoses],
     return out
 
 
-def _init_worker() -> None:
-    cv2.setNumThreads(1)
-
-
-def _scene_job(job: tuple[str, str, PosesConfig]) -> ScenePoses:
-    return estimate_scene(*job)
-
-
 def estimate_scenes(nyu_raw: str | Path, scenes: list[str], config: PosesConfig) -> dict[str, ScenePoses]:
     """``estimate_scene`` for every scene, in ``config.workers`` processes (≤ 1: in this one)."""
     for scene in scenes:
         if not (Path(nyu_raw) / scene).is_dir():
             raise DataError(Path(nyu_raw) / scene, "raw scene of the prepared set not found",
                             "point data.nyu_raw at the raw frames the prepared set was made from")
-    jobs = [(str(nyu_raw), s, config) for s in scenes]
-    if config.workers <= 1 or len(jobs) <= 1:
-        _init_worker()
-        return {s: _scene_job(j) for s, j in zip(scenes, jobs)}
-    ctx = multiprocessing.get_context("spawn")
-    workers = min(config.workers, len(jobs))
-    with cf.ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker) as pool:
-        return dict(zip(scenes, pool.map(_scene_job, jobs)))
+    poses = map_jobs(functools.partial(estimate_scene, str(nyu_raw), config=config), scenes, config.workers)
+    return dict(zip(scenes, poses))

@@ -41,12 +41,9 @@ def _errors(rows: list[dict[str, Any]]) -> dict[str, Any]:
     for scene in {r["scene"] for r in rows}:
         ratios = np.array([r["ratio"] for r in rows if r["scene"] == scene])
         spread += list(np.abs(ratios / np.median(ratios) - 1.0))
-    return {
-        "pairs": len(rows),
-        "rotation_error_deg": _summary([r["rot"] for r in rows]),
-        "translation_direction_error_deg": _summary([r["dir"] for r in rows]),
-        "scale_ratio_spread": _summary(spread),
-    }
+    return {"pairs": len(rows), "rotation_error_deg": _summary([r["rot"] for r in rows]),
+            "translation_direction_error_deg": _summary([r["dir"] for r in rows]),
+            "scale_ratio_spread": _summary(spread)}
 
 
 def prior_metrics(prepared: PreparedSet, scenes: dict[str, ScenePoses],
@@ -83,13 +80,8 @@ def prior_metrics(prepared: PreparedSet, scenes: dict[str, ScenePoses],
             "translation_direction_error_deg_median": _summary([r["dir"] for r in mine])["median"],
             "scale_to_metric": round(float(np.median([r["ratio"] for r in mine])), 4) if mine else None,
         }  # fmt: skip
-    return {
-        "scenes": len(scenes),
-        "frames": frames,
-        "frames_registered_share": round(registered / max(frames, 1), 4),
-        "pairs": n_pairs,
-        "pairs_reliable_share": round(reliable / max(n_pairs, 1), 4),
-        "reliable": _errors([r for r in rows if r["reliable"]]),
-        "registered": _errors(rows),
-        "per_scene": per_scene,
-    }
+    return {"scenes": len(scenes), "frames": frames,
+            "frames_registered_share": round(registered / max(frames, 1), 4), "pairs": n_pairs,
+            "pairs_reliable_share": round(reliable / max(n_pairs, 1), 4),
+            "reliable": _errors([r for r in rows if r["reliable"]]), "registered": _errors(rows),
+            "per_scene": per_scene}

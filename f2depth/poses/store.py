@@ -11,8 +11,6 @@
 
 from __future__ import annotations
 
-import csv
-import io
 import json
 import os
 from dataclasses import dataclass
@@ -22,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from f2depth.data.errors import DataError
-from f2depth.io import atomic_dir, write_json, write_text
+from f2depth.io import atomic_dir, csv_text, write_json, write_text
 from f2depth.poses.estimate import PairPrior, PosesConfig, ScenePoses
 
 FORMAT = "f2depth.poses"
@@ -38,12 +36,9 @@ def _pair(p: PairPrior) -> dict[str, Any]:
 
 
 def _cameras_csv(s: ScenePoses) -> str:
-    buf = io.StringIO()
-    w = csv.writer(buf, lineterminator="\n")
-    w.writerow(CAMERA_HEADER)
-    for name, reg, T in zip(s.raw_files, s.registered, s.world_T_cam):
-        w.writerow([name, int(reg), *([f"{v:.9g}" for v in T[:3].ravel()] if reg else [""] * 12)])
-    return buf.getvalue()
+    rows = [[name, int(reg), *([f"{v:.9g}" for v in T[:3].ravel()] if reg else [""] * 12)]
+            for name, reg, T in zip(s.raw_files, s.registered, s.world_T_cam)]
+    return csv_text(CAMERA_HEADER, rows)
 
 
 def write_poses(out_dir: str | os.PathLike, scenes: dict[str, ScenePoses],

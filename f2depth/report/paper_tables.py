@@ -80,19 +80,20 @@ TABLE5_VARIANTS = ("baseline", "no_feature", "full")
 
 def loss_marks(r: VariantResults) -> tuple[bool | None, bool | None]:
     """(L_rigid on, L_feature on) from the loss weights the variant's model was trained with, as the
-    evaluate stage recorded them (``trained_with.weights``); None where the metrics do not say."""
+    evaluate stage recorded them (``trained_with.weights``, term → weight); None where the metrics do not
+    say."""
     weights = (r.metrics.get("trained_with") or {}).get("weights") or {}
 
-    def on(key: str) -> bool | None:
-        return None if weights.get(key) is None else float(weights[key]) != 0.0
+    def on(term: str) -> bool | None:
+        return None if weights.get(term) is None else float(weights[term]) != 0.0
 
-    return on("lambda_rigid"), on("lambda3")
+    return on("rigid"), on("feature")
 
 
 def table5(results: Mapping[str, VariantResults]) -> Table:
     """Losses on/off (tab:tab5): baseline, + L_rigid (no_feature), + L_feature (full), × PP. The ✓/×
-    marks are the weights each run was trained with (so ``dvc exp run -S lambda3=0`` shows L_feature × for
-    ``full``), not the variants' intended roles."""
+    marks are the weights each run was trained with (so ``dvc exp run -S loss_weights.feature=0`` shows
+    L_feature × for ``full``), not the variants' intended roles."""
     rows: list[dict[str, Any]] = []
     paper = published.table5()
     for pp in (False, True):

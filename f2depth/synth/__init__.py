@@ -6,54 +6,29 @@ Modules: ``textures`` (procedural albedo), ``styles`` and ``layout`` (rooms and 
 ``scene`` (boxes, lights, baked radiance atlas), ``camera_path`` (handheld motion), ``render`` (ray
 casting), ``sensor`` (exposure, vignetting, noise), ``groundtruth`` (flow, occlusion, Kinect holes),
 ``writers`` and ``matfiles`` (file formats), ``plan`` and ``jobs`` (what to generate, one job per
-sequence), ``contact_sheet`` (the README figure).
+sequence).
 
 Entry point: :func:`generate`.
 """
 
 from __future__ import annotations
 
-import multiprocessing
+import functools
 import time
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import asdict
 
-import cv2
 import numpy as np
-from tqdm import tqdm
 
-from f2depth.io import write_json, write_text
+from f2depth.io import csv_text, write_json, write_text
 from f2depth.synth import jobs as _jobs
-from f2depth.synth import matfiles, plan, writers
+from f2depth.synth import matfiles, plan
 from f2depth.synth.cleanup import remove_previous
 from f2depth.synth.config import OutputPaths, SynthConfig
+from f2depth.workers import map_jobs
 
 __all__ = ["OutputPaths", "SynthConfig", "generate"]
 
 MANIFEST_VERSION = 1
-
-
-def _init_worker() -> None:
-    cv2.setNumThreads(1)
-
-
-def _run_all(cfg: SynthConfig, paths: OutputPaths, progress: bool) -> list[dict]:
-    todo = plan.jobs(cfg)
-    total = sum(j.frames for j in todo)
-    results = []
-    bar = tqdm(total=total, desc="synth", unit="frame", disable=not progress)
-    if cfg.workers <= 1:
-        for job in todo:
-            results.append(_jobs.run(job, cfg, paths))
-            bar.update(job.frames)
-    else:
-        ctx = multiprocessing.get_context("spawn")
-        with ProcessPoolExecutor(max_workers=cfg.workers, mp_context=ctx, initializer=_init_worker) as pool:
-            futures = {pool.submit(_jobs.run, job, cfg, paths): job for job in todo}
-            for fut in as_completed(futures):
-                results.append(fut.result())
-                bar.update(futures[fut].frames)
-    bar.close()
-    return results
 
 
 def generate(cfg: SynthConfig, paths: OutputPaths, progress: bool = True) -> dict:
@@ -65,7 +40,8 @@ def generate(cfg: SynthConfig, paths: OutputPaths, progress: bool = True) -> dic
     """
     t0 = time.perf_counter()
     removed = remove_previous(paths)
-    results = _run_all(cfg, paths, progress)
+    run = functools.partial(_jobs.run, cfg=cfg, paths=paths)
+    results = map_jobs(run, plan.jobs(cfg), cfg.workers, "synth", progress, size=lambda job: job.frames)
     by_ds: dict[str, list[dict]] = {}
     for r in results:
         by_ds.setdefault(r["dataset"], []).append(r)
@@ -85,14 +61,9 @@ def _finish_labeled(cfg: SynthConfig, paths: OutputPaths, results: list[dict]) -
     images = plan.labeled_images(cfg)
     if [it[0] for it in items] != [im.index for im in images]:
         raise RuntimeError("labeled images missing from the job results")
-    matfiles.write_nyu_labeled(
-        paths.nyu_labeled,
-        np.stack([it[1] for it in items]),
-        np.stack([it[2] for it in items]),
-        np.stack([it[3] for it in items]),
-        [im.scene for im in images],
-        [im.kind for im in images],
-    )
+    matfiles.write_nyu_labeled(paths.nyu_labeled, np.stack([it[1] for it in items]),
+                               np.stack([it[2] for it in items]), np.stack([it[3] for it in items]),
+                               [im.scene for im in images], [im.kind for im in images])
     test = [im.index for im in images if im.test]
     train = [im.index for im in images if not im.test]
     matfiles.write_splits(paths.nyu_splits, np.array(train), np.array(test))
@@ -107,8 +78,9 @@ def _finish_sevenscenes(cfg: SynthConfig, paths: OutputPaths, results: list[dict
 
 def _finish_campus(cfg: SynthConfig, paths: OutputPaths, results: list[dict]) -> None:
     """Campus: points.csv."""
-    rows = sorted(p for r in results for p in r["points"])
-    write_text(paths.campus / "points.csv", writers.points_csv(rows))
+    points = sorted(p for r in results for p in r["points"])
+    rows = [(s, i, f"{u:g}", f"{v:g}", f"{d:.4f}") for s, i, u, v, d in points]
+    write_text(paths.campus / "points.csv", csv_text(["scene", "image", "u", "v", "depth_m"], rows))
 
 
 FINISH = {"nyu_labeled": _finish_labeled, "sevenscenes": _finish_sevenscenes, "campus": _finish_campus}
@@ -125,40 +97,25 @@ def _manifest(cfg: SynthConfig, by_ds: dict[str, list[dict]]) -> dict:
         datasets[ds] = {"scenes": dict(sorted(scenes.items())), "frames": sum(scenes.values())}
     labeled = plan.labeled_images(cfg)
     datasets.setdefault("nyu_labeled", {})["test_scenes"] = sorted({im.scene for im in labeled if im.test})
-    return {
-        "generator": "f2depth.synth",
-        "version": MANIFEST_VERSION,
-        "params": {k: v for k, v in cfg.to_dict().items() if k != "workers"},  # output does not depend on it
-        "datasets": datasets,
-    }
+    params = {k: v for k, v in asdict(cfg).items() if k != "workers"}  # the output does not depend on it
+    return {"generator": "f2depth.synth", "version": MANIFEST_VERSION, "params": params, "datasets": datasets}
 
 
 def _metrics(cfg: SynthConfig, by_ds: dict[str, list[dict]], manifest: dict, seconds: float) -> dict:
-    out: dict = {
-        "data_source": "synthetic",
-        "seconds": round(seconds, 2),
-        "workers": cfg.workers,
-        "datasets": {},
-    }
+    out: dict = {"data_source": "synthetic", "seconds": round(seconds, 2), "workers": cfg.workers,
+                 "datasets": {}}
     for ds, rs in sorted(by_ds.items()):
-        m = {
-            "scenes": len(manifest["datasets"][ds]["scenes"]),
-            "frames": sum(r["frames"] for r in rs),
-            "mean_depth_m": round(
-                sum(r["depth_sum"] for r in rs) / max(1, sum(r["depth_count"] for r in rs)), 4
-            ),
-            "worker_seconds": round(sum(r["seconds"] for r in rs), 2),
-        }
+        depth_n = max(1, sum(r["depth_count"] for r in rs))
+        m = {"scenes": len(manifest["datasets"][ds]["scenes"]), "frames": sum(r["frames"] for r in rs),
+             "mean_depth_m": round(sum(r["depth_sum"] for r in rs) / depth_n, 4),
+             "worker_seconds": round(sum(r["seconds"] for r in rs), 2)}
         flow_n = sum(r.get("flow_count", 0) for r in rs)
         if flow_n:
             m["mean_flow_px"] = round(sum(r["flow_abs_sum"] for r in rs) / flow_n, 4)
             m["occluded_fraction"] = round(sum(r["occluded_sum"] for r in rs) / flow_n, 5)
             speeds = np.concatenate([np.asarray(r["speeds"]) * r["fps"] for r in rs])
-            m["camera_speed_m_s"] = {
-                "mean": round(float(speeds.mean()), 4),
-                "min": round(float(speeds.min()), 4),
-                "max": round(float(speeds.max()), 4),
-            }
+            m["camera_speed_m_s"] = {k: round(float(f(speeds)), 4) for k, f in
+                                     (("mean", np.mean), ("min", np.min), ("max", np.max))}
         if ds == "campus":
             m["points"] = sum(len(r["points"]) for r in rs)
         out["datasets"][ds] = m

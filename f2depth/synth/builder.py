@@ -34,14 +34,12 @@ class RoomBuilder:
         return Material("wood", color or self.pick(self.style.wood), self.style.wall_density * 1.5, amp=0.07)
 
     def paint(self, color, amp: float | None = None) -> Material:
-        return Material(
-            "flat", color, self.style.wall_density, amp=self.style.wall_amp if amp is None else amp
-        )
+        return Material("flat", color, self.style.wall_density,
+                        amp=self.style.wall_amp if amp is None else amp)
 
     def fabric(self, color=None) -> Material:
-        return Material(
-            "carpet", color or self.pick(self.style.fabric), self.style.wall_density * 2, amp=0.06
-        )
+        return Material("carpet", color or self.pick(self.style.fabric), self.style.wall_density * 2,
+                        amp=0.06)
 
     def detail(self, kind: str, **kw) -> Material:
         kw.setdefault("palette", self.style.accents)
@@ -51,12 +49,8 @@ class RoomBuilder:
     def wall_frame(self, wall: int):
         """(origin (2,), ex (2,), ey (2,), length) of wall 0..3 (y=0, x=W, y=D, x=0), y into the room."""
         W, D = self.W, self.D
-        return [
-            ((0.0, 0.0), (1, 0), (0, 1), W),
-            ((W, 0.0), (0, 1), (-1, 0), D),
-            ((W, D), (-1, 0), (0, -1), W),
-            ((0.0, D), (0, -1), (1, 0), D),
-        ][wall]
+        return [((0.0, 0.0), (1, 0), (0, 1), W), ((W, 0.0), (0, 1), (-1, 0), D),
+                ((W, D), (-1, 0), (0, -1), W), ((0.0, D), (0, -1), (1, 0), D)][wall]
 
     def put(self, frame, x0, x1, y0, y1, z0, z1, mats: dict[str, Material], label: str, obstacle=True):
         """Add a box given in the local frame; ``mats`` maps left/right/back/front/top/bottom/default."""

@@ -45,14 +45,8 @@ class PathStyle:
 
 def rotation(yaw: float, pitch: float, roll: float) -> np.ndarray:
     """world_R_cam for yaw about world z, pitch (positive looks up) and roll about the optical axis (rad)."""
-    cy, sy, cp, sp, cr, sr = (
-        np.cos(yaw),
-        np.sin(yaw),
-        np.cos(-pitch),
-        np.sin(-pitch),
-        np.cos(roll),
-        np.sin(roll),
-    )
+    cy, sy, cp, sp, cr, sr = (np.cos(yaw), np.sin(yaw), np.cos(-pitch), np.sin(-pitch), np.cos(roll),
+                              np.sin(roll))
     rz = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1]])
     ry = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
     rx = np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]])
@@ -79,10 +73,8 @@ def free_spot(scene: Scene, rng: np.random.Generator, style: PathStyle, min_radi
     clr = clearance(scene, cand, style)
     ok = np.flatnonzero(clr >= min_radius)
     if ok.size == 0:
-        raise ValueError(
-            f"scene {scene.name}: no free spot for the camera (best clearance {clr.max():.2f} m); "
-            "the room is too cluttered for the path margins"
-        )
+        raise ValueError(f"scene {scene.name}: no free spot for the camera (best clearance {clr.max():.2f} "
+                         f"m); the room is too cluttered for the path margins")
     i = ok[0]
     return cand[i], float(clr[i])
 
@@ -101,12 +93,8 @@ def _min_turn_radius(loop: np.ndarray) -> float:
     a, b = loop[:-2] - loop[1:-1], loop[2:] - loop[1:-1]
     c = loop[2:] - loop[:-2]
     cross = np.abs(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0])
-    r = (
-        np.linalg.norm(a, axis=1)
-        * np.linalg.norm(b, axis=1)
-        * np.linalg.norm(c, axis=1)
-        / (2 * cross + 1e-15)
-    )
+    r = (np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1) * np.linalg.norm(c, axis=1)
+         / (2 * cross + 1e-15))
     return float(r.min())
 
 
@@ -130,9 +118,8 @@ def _loop(rng: np.random.Generator, radius: float, tries: int = 20) -> np.ndarra
     return loop[::-1].copy() if rng.random() < 0.5 else loop
 
 
-def handheld_path(
-    scene: Scene, n_frames: int, rng: np.random.Generator, style: PathStyle = PathStyle()
-) -> tuple[np.ndarray, np.ndarray]:
+def handheld_path(scene: Scene, n_frames: int, rng: np.random.Generator,
+                  style: PathStyle = PathStyle()) -> tuple[np.ndarray, np.ndarray]:
     """Camera poses of one sequence: (world_T_cam (N, 4, 4) float64, times (N,) seconds from 0)."""
     centre, avail = free_spot(scene, rng, style)
     radius = min(avail, rng.uniform(*style.radius))
@@ -160,9 +147,8 @@ def handheld_path(
     target = cands[int(np.argmax(far >= min(2.0, 0.8 * far.max())))]
     yaw = np.arctan2(target[1] - pos[:, 1], target[0] - pos[:, 0])
     yaw = np.unwrap(yaw) + np.deg2rad(_sines(rng, times, rng.uniform(*style.pan_amp), style.pan_freq))
-    pitch = np.deg2rad(
-        rng.uniform(*style.pitch) + _sines(rng, times, rng.uniform(*style.pitch_amp), (0.1, 0.5))
-    )
+    pitch = np.deg2rad(rng.uniform(*style.pitch)
+                       + _sines(rng, times, rng.uniform(*style.pitch_amp), (0.1, 0.5)))
     roll = np.deg2rad(rng.uniform(*style.roll) + _sines(rng, times, rng.uniform(*style.roll_amp), (0.1, 0.5)))
     for ang in (yaw, pitch, roll):
         ang += np.deg2rad(_sines(rng, times, style.tremor, (1.5, 4.0)))

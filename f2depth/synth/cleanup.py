@@ -22,19 +22,13 @@ def _frame_files(paths: OutputPaths, dataset: str, rel: Path) -> list[Path]:
     if dataset == "nyu_raw":
         return [paths.nyu_raw / parent / f"{stem}.ppm"]
     if dataset == "sevenscenes":
-        return [
-            paths.sevenscenes / parent / f"{stem}.{ext}" for ext in ("color.png", "depth.png", "pose.txt")
-        ]
+        return [paths.sevenscenes / parent / f"{stem}.{e}" for e in ("color.png", "depth.png", "pose.txt")]
     if dataset == "campus":
         return [paths.campus / parent / f"{stem}.jpg"]
     if dataset == "animated":
         t = paths.animated / "training"
-        return [
-            t / "clean" / parent / f"{stem}.png",
-            t / "final" / parent / f"{stem}.png",
-            t / "flow" / parent / f"{stem}.flo",
-            t / "occlusions" / parent / f"{stem}.png",
-        ]
+        return [t / "clean" / parent / f"{stem}.png", t / "final" / parent / f"{stem}.png",
+                t / "flow" / parent / f"{stem}.flo", t / "occlusions" / parent / f"{stem}.png"]
     return []  # nyu_labeled lives in one .mat file, rewritten as a whole
 
 
@@ -54,10 +48,8 @@ def remove_previous(paths: OutputPaths) -> int:
         return 0
     manifest = json.loads(manifest_file.read_text())
     if manifest.get("generator") != "f2depth.synth":
-        raise RuntimeError(
-            f"{manifest_file}: not written by f2depth.synth; refusing to clean {paths.synth_gt} "
-            "(point data.synth_gt at the generator's own folder)"
-        )
+        raise RuntimeError(f"{manifest_file}: not written by f2depth.synth; refusing to clean "
+                           f"{paths.synth_gt} (point data.synth_gt at the generator's own folder)")
     removed = 0
     for dataset in manifest.get("datasets", {}):
         root = paths.synth_gt / dataset

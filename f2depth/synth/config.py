@@ -1,13 +1,12 @@
-"""Generator settings (the ``synth`` section of params.yaml) and output paths (the ``data`` section)."""
+"""Generator settings (the ``synth`` section of params.yaml) and output paths (below ``synth.root``)."""
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from f2depth import params as P
-from f2depth.params import ParamsError
 
 
 @dataclass(frozen=True)
@@ -39,13 +38,10 @@ class SynthConfig:
     flow_gt: bool = False
     sensor_effects: bool = True
 
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
-
     @classmethod
     def from_params(cls, synth: dict[str, Any], source: str = "params.yaml") -> SynthConfig:
         """Read the ``synth`` section (:class:`SynthParams`); a missing or bad key raises
-        :class:`ParamsError` naming it."""
+        :class:`f2depth.params.ParamsError` naming it."""
         s = P.section({"synth": synth, "_file": source}, "synth", SynthParams)
         return cls(seed=s.seed, workers=s.workers, supersample=s.supersample, nyu_raw_scenes=s.nyu_raw.scenes,
                    nyu_raw_frames=s.nyu_raw.frames, labeled_images=s.nyu_labeled.images,
@@ -119,7 +115,8 @@ class SynthParams:
 
 @dataclass(frozen=True)
 class OutputPaths:
-    """Where each dataset goes (the ``data.*`` entries of params.yaml)."""
+    """Where each dataset goes: the standard layout below ``synth.root``, which the default ``data.*`` entries
+    of params.yaml point at."""
 
     nyu_raw: Path
     nyu_labeled: Path  # the .mat file
@@ -130,44 +127,9 @@ class OutputPaths:
     synth_gt: Path
 
     @classmethod
-    def from_params(cls, data: dict[str, Any], source: str = "params.yaml") -> OutputPaths:
-        keys = {
-            "nyu_raw": "nyu_raw",
-            "nyu_labeled": "nyu_labeled",
-            "nyu_splits": "nyu_splits",
-            "sevenscenes": "sevenscenes",
-            "campus": "campus",
-            "animated": "sintel",
-            "synth_gt": "synth_gt",
-        }
-        out = {}
-        for name, key in keys.items():
-            if not isinstance(data, dict) or not data.get(key):
-                raise ParamsError(f"{source}: missing parameter 'data.{key}'")
-            out[name] = Path(data[key])
-        return cls(**out)
-
-    @classmethod
     def under(cls, root: str | Path) -> OutputPaths:
-        """The standard layout below one folder (tests, ad-hoc runs)."""
+        """The standard layout below one folder."""
         r = Path(root)
-        return cls(
-            nyu_raw=r / "nyu_raw",
-            nyu_labeled=r / "nyu_labeled" / "nyu_depth_v2_labeled.mat",
-            nyu_splits=r / "nyu_labeled" / "splits.mat",
-            sevenscenes=r / "7scenes",
-            campus=r / "campus",
-            animated=r / "animated",
-            synth_gt=r / "synth_gt",
-        )
-
-    def all(self) -> list[Path]:
-        return [
-            self.nyu_raw,
-            self.nyu_labeled,
-            self.nyu_splits,
-            self.sevenscenes,
-            self.campus,
-            self.animated,
-            self.synth_gt,
-        ]
+        return cls(nyu_raw=r / "nyu_raw", nyu_labeled=r / "nyu_labeled" / "nyu_depth_v2_labeled.mat",
+                   nyu_splits=r / "nyu_labeled" / "splits.mat", sevenscenes=r / "7scenes",
+                   campus=r / "campus", animated=r / "animated", synth_gt=r / "synth_gt")

@@ -69,17 +69,8 @@ def desk(b: RoomBuilder, wall: int):
         mx = x0 + b.rng.uniform(0.05, max(0.06, w - mw - 0.05))
         dark = b.paint((0.08, 0.08, 0.09), 0.02)
         b.put(f, mx + mw / 2 - 0.03, mx + mw / 2 + 0.03, 0.12, 0.18, z, z + 0.12, {"default": dark}, "stand")
-        b.put(
-            f,
-            mx,
-            mx + mw,
-            0.12,
-            0.16,
-            z + 0.1,
-            z + 0.1 + 0.6 * mw,
-            {"default": dark, "front": b.detail("screen")},
-            "monitor",
-        )
+        b.put(f, mx, mx + mw, 0.12, 0.16, z + 0.1, z + 0.1 + 0.6 * mw,
+              {"default": dark, "front": b.detail("screen")}, "monitor")
     _clutter(b, f, x0 + 0.05, x0 + w - 0.05, 0.25, d - 0.05, z, int(b.rng.integers(1, 4)))
 
 
@@ -117,17 +108,8 @@ def tv_stand(b: RoomBuilder, wall: int):
     tw = 0.7 * w
     tx0 = x0 + (w - tw) / 2
     dark = b.paint((0.06, 0.06, 0.07), 0.02)
-    b.put(
-        f,
-        tx0,
-        tx0 + tw,
-        0.1,
-        0.16,
-        0.55,
-        0.55 + 0.56 * tw,
-        {"default": dark, "front": b.detail("screen")},
-        "tv",
-    )
+    b.put(f, tx0, tx0 + tw, 0.1, 0.16, 0.55, 0.55 + 0.56 * tw,
+          {"default": dark, "front": b.detail("screen")}, "tv")
 
 
 def counter(b: RoomBuilder, wall: int):
@@ -139,12 +121,8 @@ def counter(b: RoomBuilder, wall: int):
     f, body = b.wall_frame(wall), b.wood()
     b.put(f, x0, x0 + w, 0.0, 0.6, 0.0, 0.88, {"default": body}, "counter")
     b.put(f, x0, x0 + w, 0.0, 0.63, 0.88, 0.92, {"default": b.paint((0.8, 0.8, 0.78), 0.05)}, "worktop")
-    tiles = b.detail(
-        "tiles",
-        color=b.pick(((0.9, 0.9, 0.88), (0.7, 0.8, 0.85), (0.85, 0.75, 0.6))),
-        size=float(b.rng.choice([0.1, 0.15])),
-        amp=0.15,
-    )
+    tiles = b.detail("tiles", color=b.pick(((0.9, 0.9, 0.88), (0.7, 0.8, 0.85), (0.85, 0.75, 0.6))),
+                     size=float(b.rng.choice([0.1, 0.15])), amp=0.15)
     b.put(f, x0, x0 + w, 0.0, 0.012, 0.92, 1.45, {"default": tiles}, "backsplash", obstacle=False)
     top = min(b.H - 0.15, 2.15)
     b.put(f, x0, x0 + w, 0.0, 0.35, 1.45, top, {"default": body}, "upper cabinets")
@@ -155,9 +133,8 @@ def fridge(b: RoomBuilder, wall: int):
     x0 = b.reserve(wall, 0.7)
     if x0 is not None:
         color = b.pick(((0.92, 0.92, 0.92), (0.7, 0.72, 0.74)))
-        b.put(
-            b.wall_frame(wall), x0, x0 + 0.7, 0.0, 0.7, 0.0, 1.8, {"default": b.paint(color, 0.02)}, "fridge"
-        )
+        b.put(b.wall_frame(wall), x0, x0 + 0.7, 0.0, 0.7, 0.0, 1.8,
+              {"default": b.paint(color, 0.02)}, "fridge")
 
 
 def poster(b: RoomBuilder, wall: int):
@@ -184,40 +161,19 @@ def window(b: RoomBuilder, wall: int):
     if x0 is None:
         return
     f, z0 = b.wall_frame(wall), 0.95
-    sky = Material(
-        "emissive", b.pick(((0.85, 0.9, 1.0), (0.95, 0.95, 0.9))), 4.0, strength=b.rng.uniform(2.5, 5)
-    )
+    sky = Material("emissive", b.pick(((0.85, 0.9, 1.0), (0.95, 0.95, 0.9))), 4.0,
+                   strength=b.rng.uniform(2.5, 5))
     frame_m = b.paint((0.95, 0.95, 0.95), 0.01)
-    b.put(
-        f,
-        x0,
-        x0 + w,
-        0.0,
-        0.02,
-        z0,
-        min(z0 + h, b.H - 0.2),
-        {"default": frame_m, "front": sky},
-        "window",
-        obstacle=False,
-    )
+    b.put(f, x0, x0 + w, 0.0, 0.02, z0, min(z0 + h, b.H - 0.2), {"default": frame_m, "front": sky}, "window",
+          obstacle=False)
     b.put(f, x0 - 0.05, x0 + w + 0.05, 0.0, 0.12, z0 - 0.04, z0, {"default": frame_m}, "sill", obstacle=False)
 
 
 def door(b: RoomBuilder, wall: int):
     x0 = b.reserve(wall, 0.95)
     if x0 is not None:
-        b.put(
-            b.wall_frame(wall),
-            x0,
-            x0 + 0.95,
-            0.0,
-            0.03,
-            0.0,
-            2.1,
-            {"default": b.wood()},
-            "door",
-            obstacle=False,
-        )
+        b.put(b.wall_frame(wall), x0, x0 + 0.95, 0.0, 0.03, 0.0, 2.1, {"default": b.wood()}, "door",
+              obstacle=False)
 
 
 def lockers(b: RoomBuilder, wall: int):
@@ -227,17 +183,8 @@ def lockers(b: RoomBuilder, wall: int):
         return
     color = b.pick(((0.3, 0.45, 0.6), (0.6, 0.62, 0.66), (0.75, 0.3, 0.2)))
     for k in range(n):
-        b.put(
-            b.wall_frame(wall),
-            x0 + 0.4 * k,
-            x0 + 0.4 * k + 0.39,
-            0.0,
-            0.45,
-            0.0,
-            1.8,
-            {"default": b.paint(color, 0.03)},
-            "locker",
-        )
+        b.put(b.wall_frame(wall), x0 + 0.4 * k, x0 + 0.4 * k + 0.39, 0.0, 0.45, 0.0, 1.8,
+              {"default": b.paint(color, 0.03)}, "locker")
 
 
 def notice_board(b: RoomBuilder, wall: int):
@@ -251,18 +198,8 @@ def notice_board(b: RoomBuilder, wall: int):
     for _ in range(int(b.rng.integers(2, 6))):
         pw, ph = b.rng.uniform(0.15, 0.35), b.rng.uniform(0.2, 0.4)
         px, pz = b.rng.uniform(x0 + 0.03, x0 + w - pw - 0.03), b.rng.uniform(1.03, 1.97 - ph)
-        b.put(
-            f,
-            px,
-            px + pw,
-            0.02,
-            0.025,
-            pz,
-            pz + ph,
-            {"default": b.detail("poster")},
-            "notice",
-            obstacle=False,
-        )
+        b.put(f, px, px + pw, 0.02, 0.025, pz, pz + ph, {"default": b.detail("poster")}, "notice",
+              obstacle=False)
 
 
 def stairs(b: RoomBuilder, wall: int):
@@ -282,18 +219,8 @@ def fireplace(b: RoomBuilder, wall: int):
     f = b.wall_frame(wall)
     brick = b.detail("bricks", color=(0.55, 0.25, 0.18), size=0.07)
     b.put(f, x0, x0 + 1.4, 0.0, 0.5, 0.0, 1.15, {"default": brick}, "fireplace")
-    b.put(
-        f,
-        x0 + 0.35,
-        x0 + 1.05,
-        0.5,
-        0.51,
-        0.1,
-        0.7,
-        {"default": b.detail("screen")},
-        "hearth",
-        obstacle=False,
-    )
+    b.put(f, x0 + 0.35, x0 + 1.05, 0.5, 0.51, 0.1, 0.7, {"default": b.detail("screen")}, "hearth",
+          obstacle=False)
     b.put(f, x0 - 0.1, x0 + 1.5, 0.0, 0.6, 1.15, 1.22, {"default": b.wood()}, "mantel")
 
 
@@ -339,12 +266,8 @@ def tiled_patch(b: RoomBuilder):
     w, d = b.rng.uniform(1.0, 2.0), b.rng.uniform(1.0, 2.0)
     f = _centre_frame(b, w, d)
     if f is not None:
-        tiles = b.detail(
-            "tiles",
-            color=b.pick(((0.85, 0.85, 0.82), (0.6, 0.4, 0.3), (0.3, 0.3, 0.32))),
-            size=float(b.rng.choice([0.2, 0.3])),
-            amp=0.25,
-        )
+        tiles = b.detail("tiles", color=b.pick(((0.85, 0.85, 0.82), (0.6, 0.4, 0.3), (0.3, 0.3, 0.32))),
+                         size=float(b.rng.choice([0.2, 0.3])), amp=0.25)
         b.put(f, 0.0, w, 0.0, d, 0.0, 0.005, {"default": tiles}, "tiled patch", obstacle=False)
 
 

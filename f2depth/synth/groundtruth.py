@@ -40,9 +40,8 @@ def rigid_flow(depth: np.ndarray, K: np.ndarray, tgt_T_src: np.ndarray) -> tuple
     return flow, zt.astype(np.float32)
 
 
-def occlusion(
-    flow: np.ndarray, z_tgt: np.ndarray, depth_tgt: np.ndarray, rel_tol: float = 0.02
-) -> np.ndarray:
+def occlusion(flow: np.ndarray, z_tgt: np.ndarray, depth_tgt: np.ndarray,
+              rel_tol: float = 0.02) -> np.ndarray:
     """Pixels of the source that are not visible at their flow target: (H, W) bool.
 
     A pixel is visible when it lands inside the target image in front of the camera and its predicted

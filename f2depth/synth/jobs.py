@@ -5,13 +5,14 @@ from __future__ import annotations
 
 import functools
 import time
-from pathlib import Path
 
 import cv2
 import numpy as np
 
 from f2depth.camera import NYU_RGB_DIST, NYU_RGB_K, distortion_maps
+from f2depth.data.sevenscenes import SEVENSCENES_K
 from f2depth.data.sintel import write_flo
+from f2depth.io import write_rgb
 from f2depth.synth import writers
 from f2depth.synth.camera_path import PathStyle, handheld_path
 from f2depth.synth.config import OutputPaths, SynthConfig
@@ -23,33 +24,16 @@ from f2depth.synth.scene import Scene
 from f2depth.synth.sensor import expose, exposure_series, vignette_map
 from f2depth.synth.styles import STYLES
 
-SEVENSCENES_K = np.array([[585.0, 0.0, 320.0], [0.0, 585.0, 240.0], [0.0, 0.0, 1.0]])
-STYLE_OF = {
-    "nyu_raw": "nyu",
-    "nyu_labeled": "nyu",
-    "sevenscenes": "sevenscenes",
-    "campus": "campus",
-    "animated": "animated",
-}
+STYLE_OF = {"nyu_raw": "nyu", "nyu_labeled": "nyu", "sevenscenes": "sevenscenes", "campus": "campus",
+            "animated": "animated"}
 PATHS = {
     "nyu": PathStyle(),
     "sevenscenes": PathStyle(pitch=(-30.0, -5.0)),
     "campus": PathStyle(height=(1.4, 1.7), pitch=(-12.0, 5.0), wall_margin=0.5, radius=(0.2, 0.5)),
-    "animated": PathStyle(
-        fps=24.0,
-        speed=(1.0, 2.2),
-        speed_wobble=0.2,
-        radius=(0.5, 1.4),
-        pitch=(-20.0, 10.0),
-        pitch_amp=(3.0, 8.0),
-        roll=(-8.0, 8.0),
-        roll_amp=(2.0, 6.0),
-        pan_amp=(15.0, 35.0),
-        pan_freq=(0.2, 0.5),
-        tremor=0.8,
-        wall_margin=0.5,
-        obstacle_margin=0.3,
-    ),
+    "animated": PathStyle(fps=24.0, speed=(1.0, 2.2), speed_wobble=0.2, radius=(0.5, 1.4),
+                          pitch=(-20.0, 10.0), pitch_amp=(3.0, 8.0), roll=(-8.0, 8.0), roll_amp=(2.0, 6.0),
+                          pan_amp=(15.0, 35.0), pan_freq=(0.2, 0.5), tremor=0.8, wall_margin=0.5,
+                          obstacle_margin=0.3),
 }
 NYU_EPOCH = 1_294_000_000.0  # raw timestamps start in early 2011, as NYU's do
 
@@ -97,14 +81,7 @@ def run(job: Job, cfg: SynthConfig, paths: OutputPaths) -> dict:
     """Generate everything of ``job``; returns counts and sums for the metrics (labeled: the arrays too)."""
     t0 = time.perf_counter()
     scene = room(STYLE_OF[job.dataset], job.kind, job.room, cfg.seed)
-    runner = {
-        "nyu_raw": _sequence,
-        "sevenscenes": _sequence,
-        "animated": _sequence,
-        "campus": _views,
-        "nyu_labeled": _views,
-    }[job.dataset]
-    out = runner(job, cfg, paths, scene)
+    out = (_views if job.dataset in ("campus", "nyu_labeled") else _sequence)(job, cfg, paths, scene)
     out.update(dataset=job.dataset, room=job.room, seq=job.seq, seconds=time.perf_counter() - t0)
     return out
 
@@ -112,56 +89,39 @@ def run(job: Job, cfg: SynthConfig, paths: OutputPaths) -> dict:
 def _sequence(job: Job, cfg: SynthConfig, paths: OutputPaths, scene: Scene) -> dict:
     K, n = intrinsics(job, cfg), job.frames
     style = STYLE_OF[job.dataset]
-    poses, times = handheld_path(
-        scene, n, rng_for(cfg.seed, job.dataset, job.room, job.seq, "path"), PATHS[style]
-    )
+    poses, times = handheld_path(scene, n, rng_for(cfg.seed, job.dataset, job.room, job.seq, "path"),
+                                 PATHS[style])
     sensor = _Sensor(job, cfg, K, n)
-    gt_dir = (
-        paths.synth_gt
-        / job.dataset
-        / Path(job.room if job.dataset != "sevenscenes" else f"{job.room}/{job.seq}")
-    )
+    gt_dir = paths.synth_gt / job.dataset / job.room / (job.seq if job.dataset == "sevenscenes" else "")
     stems = _stems(job, cfg, times)
-    stats = {
-        "frames": n,
-        "flow_abs_sum": 0.0,
-        "flow_count": 0,
-        "occluded_sum": 0,
-        "depth_sum": 0.0,
-        "depth_count": 0,
-        "speeds": np.linalg.norm(np.diff(poses[:, :3, 3], axis=0), axis=1).tolist(),
-        "fps": PATHS[style].fps,
-    }
+    stats = {"frames": n, "flow_abs_sum": 0.0, "flow_count": 0, "occluded_sum": 0, "depth_sum": 0.0,
+             "depth_count": 0, "speeds": np.linalg.norm(np.diff(poses[:, :3, 3], axis=0), axis=1).tolist(),
+             "fps": PATHS[style].fps}
     prev_depth = None
     for k in range(n):
         radiance, depth = render(scene, poses[k], K, job.hw, cfg.supersample)
         if job.dataset == "nyu_raw":
             mx, my = _nyu_distortion_maps()
             distorted = cv2.remap(radiance, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-            writers.write_rgb(
-                paths.nyu_raw / job.room / f"{stems[k]}.ppm", sensor(distorted, scene.exposure, k)
-            )
+            rgb = sensor(distorted, scene.exposure, k)
+            write_rgb(paths.nyu_raw / job.room / f"{stems[k]}.ppm", rgb)
         elif job.dataset == "sevenscenes":
             rgb = sensor(radiance, scene.exposure, k)
             base = paths.sevenscenes / job.room / job.seq / stems[k]
-            writers.write_rgb(f"{base}.color.png", rgb)
-            writers.write_depth_mm(
-                f"{base}.depth.png", kinect_raw_depth(depth, rgb, sensor.frame_rng(k, "holes"))
-            )
+            write_rgb(f"{base}.color.png", rgb)
+            raw = kinect_raw_depth(depth, rgb, sensor.frame_rng(k, "holes"))
+            writers.write_depth_mm(f"{base}.depth.png", raw)
             writers.write_pose_txt(f"{base}.pose.txt", poses[k])
         else:
             base = paths.animated / "training"
-            writers.write_rgb(
-                base / "clean" / job.room / f"{stems[k]}.png", sensor(radiance, scene.exposure, k)
-            )
+            rgb = sensor(radiance, scene.exposure, k)
+            write_rgb(base / "clean" / job.room / f"{stems[k]}.png", rgb)
             final = _degrade(radiance, depth, rng_for(cfg.seed, job.dataset, job.room, "final"))
-            writers.write_rgb(
-                base / "final" / job.room / f"{stems[k]}.png", sensor(final, scene.exposure, k, "final-noise")
-            )
+            write_rgb(base / "final" / job.room / f"{stems[k]}.png",
+                              sensor(final, scene.exposure, k, "final-noise"))
         if prev_depth is not None:
-            _write_pair(
-                job, cfg, paths, gt_dir, stems[k - 1], prev_depth, depth, poses[k - 1 : k + 1], K, stats
-            )
+            _write_pair(job, cfg, paths, gt_dir, stems[k - 1], prev_depth, depth, poses[k - 1:k + 1], K,
+                        stats)
         prev_depth = depth
         stats["depth_sum"] += float(depth.sum(dtype=np.float64))
         stats["depth_count"] += depth.size
@@ -223,30 +183,22 @@ def _views(job: Job, cfg: SynthConfig, paths: OutputPaths, scene: Scene) -> dict
         radiance, depth = render(scene, pose, K, job.hw, cfg.supersample)
         rgb = sensor(radiance, scene.exposure, k)
         if job.dataset == "campus":
-            writers.write_rgb(paths.campus / job.room / f"{item}.jpg", rgb, jpeg_quality=92)
-            writers.write_gt(
-                paths.synth_gt / "campus" / job.room / f"{item}.npz", depth, pose, K, compress=cfg.compress_gt
-            )
+            write_rgb(paths.campus / job.room / f"{item}.jpg", rgb, jpeg_quality=92)
+            writers.write_gt(paths.synth_gt / "campus" / job.room / f"{item}.npz", depth, pose, K,
+                             compress=cfg.compress_gt)
             pts = campus_points(depth, rng, int(rng.integers(13, 17)))
             stats["points"] += [(job.room, item, u, v, d) for u, v, d in pts]
         else:
             raw = kinect_raw_depth(depth, rgb, rng)
-            writers.write_gt(
-                paths.synth_gt / "nyu_labeled" / job.room / f"{item:04d}.npz",
-                depth,
-                pose,
-                K,
-                compress=cfg.compress_gt,
-            )
+            writers.write_gt(paths.synth_gt / "nyu_labeled" / job.room / f"{item:04d}.npz", depth, pose, K,
+                             compress=cfg.compress_gt)
             stats["labeled"].append((item, rgb, depth, raw))
         stats["depth_sum"] += float(depth.sum(dtype=np.float64))
         stats["depth_count"] += depth.size
     return stats
 
 
-def _composed_view(
-    scene: Scene, rng: np.random.Generator, style: PathStyle, K: np.ndarray, hw, tries: int = 6
-):
+def _composed_view(scene: Scene, rng: np.random.Generator, style: PathStyle, K: np.ndarray, hw, tries=6):
     """A single photo's pose: of a few handheld poses, the one whose view spans the widest depth range
     (a photographer frames the room, not a wall at arm's length); judged on a 1/8-size depth render."""
     Ks = K.copy()

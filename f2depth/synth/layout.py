@@ -65,16 +65,11 @@ _WALL_ITEMS: dict[str, tuple[list[WallRecipe], list[WallRecipe]]] = {
     # animated
     "animated": ([], [shelf, cabinet, wardrobe, desk, sofa]),
 }
-_CENTRE = {
-    "living_room": lambda b: table(b, chairs=False),
-    "kitchen": table,
-    "dining_room": table,
-    "chess": lambda b: table(b, chairs=True, top=b.detail("chess")),
-    "heads": lambda b: table(b, chairs=False, props=head_props),
-    "pumpkin": lambda b: table(b, chairs=False, props=pumpkin_props),
-    "classroom": table,
-    "library": table,
-}
+_CENTRE = {"living_room": lambda b: table(b, chairs=False), "kitchen": table, "dining_room": table,
+           "chess": lambda b: table(b, chairs=True, top=b.detail("chess")),
+           "heads": lambda b: table(b, chairs=False, props=head_props),
+           "pumpkin": lambda b: table(b, chairs=False, props=pumpkin_props), "classroom": table,
+           "library": table}
 
 
 def build(style_name: str, kind: str, name: str, rng: np.random.Generator) -> Scene:
@@ -84,11 +79,8 @@ def build(style_name: str, kind: str, name: str, rng: np.random.Generator) -> Sc
         style = dataclasses.replace(style, wood=((0.62, 0.08, 0.08), (0.7, 0.12, 0.1)))
     if kind not in _WALL_ITEMS:
         raise ValueError(f"unknown room kind {kind!r}; known: {sorted(_WALL_ITEMS)}")
-    size = (
-        float(rng.uniform(*style.size_x)),
-        float(rng.uniform(*style.size_y)),
-        float(rng.uniform(*style.height)),
-    )
+    size = (float(rng.uniform(*style.size_x)), float(rng.uniform(*style.size_y)),
+            float(rng.uniform(*style.height)))
     if rng.random() < 0.5 and style.name != "campus":
         size = (size[1], size[0], size[2])
     b = RoomBuilder(style, rng, size)

@@ -57,14 +57,8 @@ def _cellstr(f: h5py.File, refs: h5py.Group, name: str, values: list[str], start
     return start + len(values)
 
 
-def write_nyu_labeled(
-    path: str | Path,
-    images: np.ndarray,
-    depths: np.ndarray,
-    raw_depths: np.ndarray,
-    scenes: list[str],
-    scene_types: list[str],
-) -> None:
+def write_nyu_labeled(path: str | Path, images: np.ndarray, depths: np.ndarray, raw_depths: np.ndarray,
+                      scenes: list[str], scene_types: list[str]) -> None:
     """Write ``nyu_depth_v2_labeled.mat``.
 
     images (N, H, W, 3) uint8 RGB; depths, raw_depths (N, H, W) float32 metres (raw: 0 = hole);
@@ -81,20 +75,13 @@ def write_nyu_labeled(
             _attr(empty, "MATLAB_class", "canonical empty")
             empty.attrs.create("MATLAB_empty", np.uint8(1))
             # (N, H, W, 3) -> MATLAB H×W×3×N -> h5py (N, 3, W, H)
-            ds = f.create_dataset(
-                "images",
-                data=np.ascontiguousarray(images.transpose(0, 3, 2, 1)),
-                chunks=(1, 3, images.shape[2], images.shape[1]),
-                track_times=False,
-            )
+            ds = f.create_dataset("images", data=np.ascontiguousarray(images.transpose(0, 3, 2, 1)),
+                                  chunks=(1, 3, images.shape[2], images.shape[1]), track_times=False)
             _attr(ds, "MATLAB_class", "uint8")
             for name, arr in (("depths", depths), ("rawDepths", raw_depths)):
-                ds = f.create_dataset(
-                    name,
-                    data=np.ascontiguousarray(arr.transpose(0, 2, 1), dtype=np.float32),
-                    chunks=(1, arr.shape[2], arr.shape[1]),
-                    track_times=False,
-                )
+                ds = f.create_dataset(name,
+                                      data=np.ascontiguousarray(arr.transpose(0, 2, 1), dtype=np.float32),
+                                      chunks=(1, arr.shape[2], arr.shape[1]), track_times=False)
                 _attr(ds, "MATLAB_class", "single")
             nxt = _cellstr(f, refs, "scenes", scenes, 0)
             _cellstr(f, refs, "sceneTypes", scene_types, nxt)
@@ -103,23 +90,12 @@ def write_nyu_labeled(
             fh.write(header)
 
 
-def read_cellstr(f: h5py.File, name: str) -> list[str]:
-    """The strings of a MATLAB cellstr dataset (as the labeled set's ``scenes``)."""
-    return ["".join(map(chr, np.asarray(f[r]).ravel())) for r in np.asarray(f[name]).ravel()]
-
-
 def write_splits(path: str | Path, train_ndxs: np.ndarray, test_ndxs: np.ndarray) -> None:
     """``splits.mat`` like the official one: ``trainNdxs``/``testNdxs`` (k, 1) uint16, one-based."""
     buf = io.BytesIO()
-    scipy.io.savemat(
-        buf,
-        {
-            "trainNdxs": np.asarray(train_ndxs, np.uint16).reshape(-1, 1),
-            "testNdxs": np.asarray(test_ndxs, np.uint16).reshape(-1, 1),
-        },
-        format="5",
-        do_compression=False,
-    )
+    scipy.io.savemat(buf, {"trainNdxs": np.asarray(train_ndxs, np.uint16).reshape(-1, 1),
+                           "testNdxs": np.asarray(test_ndxs, np.uint16).reshape(-1, 1)},
+                     format="5", do_compression=False)
     data = bytearray(buf.getvalue())
     data[:116] = _V5_TEXT.encode("ascii").ljust(116, b" ")  # fixed header text instead of the date
     write_bytes(path, bytes(data))

@@ -19,27 +19,10 @@ from f2depth.synth.config import SynthConfig
 from f2depth.synth.layout import CAMPUS_KINDS, NYU_KINDS, SEVENSCENES_NAMES
 
 #: official 7-Scenes test sequences (each scene's TestSplit.txt, Shotton et al., CVPR 2013)
-SEVENSCENES_TEST = {
-    "chess": (3, 5),
-    "fire": (3, 4),
-    "heads": (1,),
-    "office": (2, 6, 7, 9),
-    "pumpkin": (1, 7),
-    "redkitchen": (3, 4, 6, 12, 14),
-    "stairs": (1, 4),
-}
-ANIMATED_NAMES = (
-    "atrium",
-    "bazaar",
-    "cellar",
-    "dune",
-    "grotto",
-    "harbor",
-    "kiln",
-    "lagoon",
-    "quarry",
-    "spire",
-)
+SEVENSCENES_TEST = {"chess": (3, 5), "fire": (3, 4), "heads": (1,), "office": (2, 6, 7, 9), "pumpkin": (1, 7),
+                    "redkitchen": (3, 4, 6, 12, 14), "stairs": (1, 4)}
+ANIMATED_NAMES = ("atrium", "bazaar", "cellar", "dune", "grotto", "harbor", "kiln", "lagoon", "quarry",
+                  "spire")
 
 
 def rng_for(seed: int, *parts: str | int) -> np.random.Generator:
@@ -134,10 +117,8 @@ def campus_scenes(cfg: SynthConfig) -> list[tuple[str, str, list[str]]]:
 
 
 def animated_sequences(cfg: SynthConfig) -> list[str]:
-    return [
-        f"{ANIMATED_NAMES[i % len(ANIMATED_NAMES)]}_{i // len(ANIMATED_NAMES) + 1}"
-        for i in range(cfg.animated_sequences)
-    ]
+    n = len(ANIMATED_NAMES)
+    return [f"{ANIMATED_NAMES[i % n]}_{i // n + 1}" for i in range(cfg.animated_sequences)]
 
 
 def _labeled_jobs(cfg: SynthConfig) -> list[Job]:
@@ -148,11 +129,8 @@ def _labeled_jobs(cfg: SynthConfig) -> list[Job]:
 
 
 def _sevenscenes_jobs(cfg: SynthConfig) -> list[Job]:
-    return [
-        Job("sevenscenes", scene, scene, f"seq-{q:02d}", cfg.sevenscenes_frames)
-        for scene, (test, train) in sevenscenes_sequences(cfg).items()
-        for q in sorted(test + train)
-    ]
+    return [Job("sevenscenes", scene, scene, f"seq-{q:02d}", cfg.sevenscenes_frames)
+            for scene, (test, train) in sevenscenes_sequences(cfg).items() for q in sorted(test + train)]
 
 
 def _campus_jobs(cfg: SynthConfig) -> list[Job]:
@@ -181,8 +159,6 @@ def jobs(cfg: SynthConfig) -> list[Job]:
     out = [Job("nyu_raw", name, kind, name, cfg.nyu_raw_frames) for name, kind in nyu_raw_scenes(cfg)]
     for name in standins():
         out += STANDINS[name](cfg)
-    out += [
-        Job("animated", s, "animated", s, cfg.animated_frames, (), cfg.animated_hw)
-        for s in animated_sequences(cfg)
-    ]
+    out += [Job("animated", s, "animated", s, cfg.animated_frames, (), cfg.animated_hw)
+            for s in animated_sequences(cfg)]
     return sorted(out, key=lambda j: -j.cost)

@@ -21,9 +21,8 @@ NEAR = 1e-3  # metres: hits closer than this are ignored
 MIN_PX_PER_TEXEL = 2.0  # detailed textures seen coarser than this are supersampled
 
 _CORNERS = np.array([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)])
-_EDGES = np.array(
-    [(0, 1), (2, 3), (4, 5), (6, 7), (0, 2), (1, 3), (4, 6), (5, 7), (0, 4), (1, 5), (2, 6), (3, 7)]
-)
+_EDGES = np.array([(0, 1), (2, 3), (4, 5), (6, 7), (0, 2), (1, 3), (4, 6), (5, 7), (0, 4), (1, 5), (2, 6),
+                   (3, 7)])
 
 
 def _bounds(lo, hi, R, o, K) -> tuple[float, float, float, float] | None:
@@ -169,9 +168,8 @@ def shade(scene: Scene, t: np.ndarray, sid: np.ndarray, D, origin: np.ndarray) -
     return out
 
 
-def render(
-    scene: Scene, world_T_cam: np.ndarray, K: np.ndarray, hw: tuple[int, int], ss: int, adaptive: bool = True
-) -> tuple[np.ndarray, np.ndarray]:
+def render(scene: Scene, world_T_cam: np.ndarray, K: np.ndarray, hw: tuple[int, int], ss: int,
+           adaptive: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """Render one view on the ideal pinhole grid of ``K``.
 
     Returns linear radiance (H, W, 3) float32 (anti-aliased with ``ss × ss`` samples where needed, or

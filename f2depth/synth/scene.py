@@ -121,9 +121,8 @@ def _occlusion(pts: np.ndarray, normal: np.ndarray, inside: bool, room_hi: np.nd
         c = pts[..., along]
         ao *= 1.0 - 0.2 * np.exp(-np.minimum(c, hi[along] - c) / 0.15)
     else:
-        edge = np.minimum(
-            np.minimum(pts[..., 0], hi[0] - pts[..., 0]), np.minimum(pts[..., 1], hi[1] - pts[..., 1])
-        )
+        edge = np.minimum(np.minimum(pts[..., 0], hi[0] - pts[..., 0]),
+                          np.minimum(pts[..., 1], hi[1] - pts[..., 1]))
         ao *= 1.0 - 0.2 * np.exp(-edge / 0.15)
     for box in boxes:
         lo_b, hi_b = np.asarray(box.lo), np.asarray(box.hi)
@@ -175,16 +174,8 @@ def _texture(mat: Material, rng: np.random.Generator, h: int, w: int) -> np.ndar
     raise ValueError(f"unknown material kind {k!r}")
 
 
-def bake(
-    name: str,
-    room: Box,
-    boxes: list[Box],
-    lights: list[Light],
-    ambient: float,
-    rng: np.random.Generator,
-    target_grey: float = 0.18,
-    softness: float = 0.7,
-) -> Scene:
+def bake(name: str, room: Box, boxes: list[Box], lights: list[Light], ambient: float,
+         rng: np.random.Generator, target_grey: float = 0.18, softness: float = 0.7) -> Scene:
     """Generate every face texture, bake Lambertian lighting into it and build the atlas.
 
     ``ambient`` is the indirect irradiance (same units as the lights' power / m²). ``target_grey`` is
@@ -254,28 +245,17 @@ def bake(
     atlas = np.concatenate(chunks).astype(np.float32)
     lum = np.concatenate(room_samples).mean(axis=1)
     # mid-grey for the typical wall/floor, but keep the brightest 2 % below the tone curve's shoulder
-    exposure = min(
-        target_grey / max(float(np.median(lum)), 1e-6), 0.75 / max(float(np.quantile(lum, 0.98)), 1e-6)
-    )
-    obstacles = np.array(
-        [[b.lo[0], b.lo[1], b.hi[0], b.hi[1]] for b in boxes if b.obstacle], np.float64
-    ).reshape(-1, 4)
-    return Scene(
-        name=name,
-        room_lo=np.asarray(room.lo, np.float64),
-        room_hi=np.asarray(room.hi, np.float64),
-        box_lo=np.array([b.lo for b in boxes], np.float64).reshape(-1, 3),
-        box_hi=np.array([b.hi for b in boxes], np.float64).reshape(-1, 3),
-        room_surface=surface_ids[0].copy(),
-        box_surface=surface_ids[1:].copy(),
-        obstacles=obstacles,
-        tex_affine=np.array(tables["affine"], np.float32).T.copy(),
-        offset=np.array(tables["offset"], np.int64),
-        tex_w=np.array(tables["tex_w"], np.int32),
-        tex_h=np.array(tables["tex_h"], np.int32),
-        detail=np.array(tables["detail"], bool),
-        density=np.array(tables["density"], np.float32),
-        atlas_planes=tuple(np.ascontiguousarray(atlas[:, c]) for c in range(3)),
-        exposure=exposure,
-        info={"boxes": [b.label for b in boxes], "lights": len(lights)},
-    )
+    exposure = min(target_grey / max(float(np.median(lum)), 1e-6),
+                   0.75 / max(float(np.quantile(lum, 0.98)), 1e-6))
+    obstacles = np.array([[b.lo[0], b.lo[1], b.hi[0], b.hi[1]] for b in boxes if b.obstacle],
+                         np.float64).reshape(-1, 4)
+    return Scene(name=name, room_lo=np.asarray(room.lo, np.float64), room_hi=np.asarray(room.hi, np.float64),
+                 box_lo=np.array([b.lo for b in boxes], np.float64).reshape(-1, 3),
+                 box_hi=np.array([b.hi for b in boxes], np.float64).reshape(-1, 3),
+                 room_surface=surface_ids[0].copy(), box_surface=surface_ids[1:].copy(), obstacles=obstacles,
+                 tex_affine=np.array(tables["affine"], np.float32).T.copy(),
+                 offset=np.array(tables["offset"], np.int64), tex_w=np.array(tables["tex_w"], np.int32),
+                 tex_h=np.array(tables["tex_h"], np.int32), detail=np.array(tables["detail"], bool),
+                 density=np.array(tables["density"], np.float32),
+                 atlas_planes=tuple(np.ascontiguousarray(atlas[:, c]) for c in range(3)), exposure=exposure,
+                 info={"boxes": [b.label for b in boxes], "lights": len(lights)})

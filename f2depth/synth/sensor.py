@@ -40,13 +40,8 @@ _LUT_N = 8192
 _TONE_LUT = (tone((np.linspace(0.0, 1.0, _LUT_N) ** 2) * _LUT_MAX) * 255.0).astype(np.float32)
 
 
-def expose(
-    radiance: np.ndarray,
-    gain: float,
-    vignette: np.ndarray | None,
-    noise_std: float,
-    rng: np.random.Generator | None,
-) -> np.ndarray:
+def expose(radiance: np.ndarray, gain: float, vignette: np.ndarray | None, noise_std: float,
+           rng: np.random.Generator | None) -> np.ndarray:
     """Linear radiance (H, W, 3) → RGB uint8 (H, W, 3).
 
     ``gain`` scales the radiance (scene exposure × per-frame change), ``vignette`` (H, W) multiplies it,
@@ -55,9 +50,8 @@ def expose(
     x = radiance * np.float32(gain)
     if vignette is not None:
         x = x * vignette[..., None]
-    idx = np.sqrt(np.minimum(x, _LUT_MAX) * np.float32(1.0 / _LUT_MAX)) * np.float32(_LUT_N - 1) + np.float32(
-        0.5
-    )
+    idx = np.sqrt(np.minimum(x, _LUT_MAX) * np.float32(1.0 / _LUT_MAX)) * np.float32(_LUT_N - 1)
+    idx = idx + np.float32(0.5)
     y = _TONE_LUT[np.maximum(idx, 0).astype(np.intp)]
     if noise_std > 0 and rng is not None:
         std = noise_std * np.sqrt(0.3 + 0.7 * y / 128.0)

@@ -19,11 +19,6 @@ def srgb_to_linear(c: np.ndarray | Color) -> np.ndarray:
     return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4).astype(np.float32)
 
 
-def jitter_color(rng: np.random.Generator, c: Color, amount: float = 0.06) -> Color:
-    """A nearby sRGB colour: each channel moved by up to ``amount``."""
-    return tuple(float(np.clip(v + rng.uniform(-amount, amount), 0.0, 1.0)) for v in c)
-
-
 def value_noise(rng: np.random.Generator, h: int, w: int, cells: float) -> np.ndarray:
     """Smooth noise (h, w) float32 with zero mean and unit-ish amplitude; ``cells`` features across the
     larger side (bicubic interpolation of a random grid)."""
@@ -34,9 +29,8 @@ def value_noise(rng: np.random.Generator, h: int, w: int, cells: float) -> np.nd
     return cv2.resize(grid, (w, h), interpolation=cv2.INTER_CUBIC)
 
 
-def fractal_noise(
-    rng: np.random.Generator, h: int, w: int, base_cells: float, octaves: int = 4
-) -> np.ndarray:
+def fractal_noise(rng: np.random.Generator, h: int, w: int, base_cells: float,
+                  octaves: int = 4) -> np.ndarray:
     """Sum of ``octaves`` value-noise layers, each twice the frequency and half the amplitude."""
     out = np.zeros((h, w), np.float32)
     amp, total = 1.0, 0.0
@@ -79,9 +73,8 @@ def carpet(rng: np.random.Generator, h: int, w: int, color: Color, contrast: flo
     return _tint(1.0 + contrast * speck + 0.6 * contrast * blot, color)
 
 
-def tiles(
-    rng: np.random.Generator, h: int, w: int, color: Color, tile_px: int, contrast: float = 0.25
-) -> np.ndarray:
+def tiles(rng: np.random.Generator, h: int, w: int, color: Color, tile_px: int,
+          contrast: float = 0.25) -> np.ndarray:
     """Tiles of ``tile_px`` texels with per-tile shade variations and dark grout lines."""
     tile_px = max(4, int(tile_px))
     ny, nx = h // tile_px + 2, w // tile_px + 2

@@ -5,18 +5,9 @@ from __future__ import annotations
 import zipfile
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from f2depth.io import atomic_path, imwrite, write_text
-
-
-def write_rgb(path: str | Path, rgb: np.ndarray, jpeg_quality: int = 95) -> None:
-    """RGB uint8 (H, W, 3) → PNG / binary PPM / JPEG by extension (stored BGR by OpenCV)."""
-    params = (
-        [cv2.IMWRITE_JPEG_QUALITY, jpeg_quality] if str(path).lower().endswith((".jpg", ".jpeg")) else None
-    )
-    imwrite(path, np.ascontiguousarray(rgb[..., ::-1]), params)
 
 
 def write_depth_mm(path: str | Path, depth: np.ndarray, invalid: int = 65535) -> None:
@@ -53,40 +44,23 @@ def save_npz(path: str | Path, compress: bool, **arrays: np.ndarray) -> None:
     """``.npz`` as ``np.savez`` (or zlib level 1, several times faster than ``np.savez_compressed``),
     atomic and byte-deterministic (fixed member timestamps)."""
     mode = zipfile.ZIP_DEFLATED if compress else zipfile.ZIP_STORED
-    with (
-        atomic_path(path, suffix=".npz") as tmp,
-        zipfile.ZipFile(tmp, "w", compression=mode, compresslevel=1 if compress else None) as zf,
-    ):
+    with (atomic_path(path, suffix=".npz") as tmp,
+          zipfile.ZipFile(tmp, "w", compression=mode, compresslevel=1 if compress else None) as zf):
         for name, arr in arrays.items():
             with zf.open(f"{name}.npy", "w", force_zip64=True) as fh:
                 np.lib.format.write_array(fh, np.asanyarray(arr), allow_pickle=False)
 
 
-def write_gt(
-    path: str | Path,
-    depth: np.ndarray,
-    world_T_cam: np.ndarray,
-    K: np.ndarray,
-    flow: np.ndarray | None = None,
-    occluded: np.ndarray | None = None,
-    compress: bool = False,
-) -> None:
+def write_gt(path: str | Path, depth: np.ndarray, world_T_cam: np.ndarray, K: np.ndarray,
+             flow: np.ndarray | None = None, occluded: np.ndarray | None = None,
+             compress: bool = False) -> None:
     """Side-car ground truth ``.npz`` (docs/formats.md): depth, world_T_cam, K [, flow, occluded]."""
     depth = np.asarray(depth, np.float32)
-    arrays = {
-        "depth": quantize(depth, DEPTH_STEP) if compress else depth,
-        "world_T_cam": np.asarray(world_T_cam, np.float64),
-        "K": np.asarray(K, np.float64),
-    }
+    arrays = {"depth": quantize(depth, DEPTH_STEP) if compress else depth,
+              "world_T_cam": np.asarray(world_T_cam, np.float64), "K": np.asarray(K, np.float64)}
     if flow is not None:
         flow = np.asarray(flow, np.float32)
         arrays["flow"] = quantize(flow, FLOW_STEP) if compress else flow
         arrays["occluded"] = np.asarray(occluded, bool)
     save_npz(path, compress, **arrays)
 
-
-def points_csv(rows: list[tuple[str, str, float, float, float]]) -> str:
-    """Campus ``points.csv`` text: header ``scene,image,u,v,depth_m``."""
-    lines = ["scene,image,u,v,depth_m"]
-    lines += [f"{s},{i},{u:g},{v:g},{d:.4f}" for s, i, u, v, d in rows]
-    return "\n".join(lines) + "\n"

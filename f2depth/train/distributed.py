@@ -24,11 +24,12 @@ import torch.distributed as dist
 from torch import nn
 
 from f2depth.losses import NonFiniteLossError
-from f2depth.losses.total import TERMS
+from f2depth.losses.total import PHOTOMETRIC
 from f2depth.params import resolve_device
+from f2depth.train.step import TERMS
 
 #: Codes of NaN/inf terms exchanged between ranks (0 = all finite).
-_TERM_CODES = [*TERMS, "total"]
+_TERM_CODES = [PHOTOMETRIC, *TERMS, "total"]
 
 
 @dataclass(frozen=True)

@@ -24,18 +24,19 @@ from torch.utils.data import DataLoader
 
 from f2depth.depth import DepthModel
 from f2depth.epochs import EpochLoop, RNGState
-from f2depth.losses.total import TERMS
+from f2depth.losses.total import PHOTOMETRIC
 from f2depth.precision import grad_scaler
 from f2depth.train.data import EpochView, TupleDataset, rank_indices
 from f2depth.train.diagnostics import DIAGNOSTIC_KEYS
 from f2depth.train.distributed import DistContext, agree_finite, all_reduce_mean, barrier, unwrap, wrap_model
 from f2depth.train.schedule import LRSchedule
-from f2depth.train.step import StepConfig, batch_to, train_step
+from f2depth.train.step import TERMS, StepConfig, batch_to, train_step
 from f2depth.train.teacher import FlowTeacher
 
-#: Columns of history.csv (DVC plots, x = epoch); empty cells for values a row does not have.
-HISTORY_COLUMNS = ["epoch", *TERMS, "total", "steps", "skipped_steps", "lr", "val_abs_rel", "val_a1",
-                   *DIAGNOSTIC_KEYS, "seconds", "val_seconds"]
+#: Columns of history.csv (DVC plots, x = epoch), every loss term by name among them; empty cells for values
+#: a row does not have (e.g. the flow terms of the P²Net baseline).
+HISTORY_COLUMNS = ["epoch", PHOTOMETRIC, *TERMS, "total", "steps", "skipped_steps", "lr", "val_abs_rel",
+                   "val_a1", *DIAGNOSTIC_KEYS, "seconds", "val_seconds"]
 
 
 @dataclass(frozen=True)
@@ -47,12 +48,18 @@ class LoopConfig:
     workers: int = 0
     sync_bn: bool = True
     progress: bool = True
+    val_every: int = 1  # validate after every N-th epoch (and always before training and after the last)
 
     def __post_init__(self) -> None:
-        if self.epochs < 1 or self.batch_size < 1:
-            raise ValueError(f"epochs and batch_size must be >= 1, got {self.epochs}, {self.batch_size}")
+        if self.epochs < 1 or self.batch_size < 1 or self.val_every < 1:
+            raise ValueError(f"epochs, batch_size and val_every must be >= 1, got {self.epochs}, "
+                             f"{self.batch_size}, {self.val_every}")
         if self.schedule.epochs != self.epochs:
             raise ValueError(f"the lr schedule covers {self.schedule.epochs} epochs, the run {self.epochs}")
+
+    def validates_after(self, epoch: int) -> bool:
+        """Whether the per-epoch measurement runs after ``epoch`` (1-based; 0 = before training)."""
+        return epoch % self.val_every == 0 or epoch == self.epochs
 
 
 @dataclass
@@ -122,7 +129,7 @@ def fit(
 
     def end_epoch(row: dict[str, Any]) -> dict[str, Any]:
         out: dict[str, Any] = {"lr": config.schedule.lr(row["epoch"] - 1)}
-        if validate is not None:
+        if validate is not None and config.validates_after(row["epoch"]):
             t1 = time.perf_counter()
             out.update(validate(unwrap(ddp)))
             out["val_seconds"] = time.perf_counter() - t1

@@ -42,7 +42,7 @@ log = logging.getLogger(__name__)
 
 def run_fingerprint(s: TrainSettings, seed: int) -> str:
     """What a resumable state must match: the settings that shape training and the input files."""
-    ignored = ("seeds", "workers", "checkpoint_dir", "device", "diagnostic_tuples")
+    ignored = ("seeds", "workers", "checkpoint_dir", "device", "diagnostic_tuples", "val_every")
     settings = {k: v for k, v in s.as_dict().items() if k not in ignored}
     settings["seed"] = seed
     files = {"tuples": Path(s.prepared) / "tuples.csv", "camera": Path(s.prepared) / "camera.json",
@@ -83,9 +83,9 @@ def train_variant(
     """Train every seed of ``s`` and write the outputs (module docstring); returns the metrics dict."""
     ctx = ctx or DistContext()
     if s.flow_model and not Path(s.flow_model).is_file():
-        raise DataError(s.flow_model, f"flow model not found (variants.{s.variant}.flow_model)",
+        raise DataError(s.flow_model, f"flow model not found (variants.{s.variant}.flow)",
                         f"`dvc repro train_depth@{s.variant}` builds it first, or set variants.{s.variant}"
-                        ".flow_model to an existing flow model (models/flow_*.pt)")
+                        ".flow to an existing flow model (models/flow_*.pt)")
     t0 = time.perf_counter()
     prepared = PreparedSet(s.prepared)
     h, w = prepared.hw
@@ -103,7 +103,7 @@ def train_variant(
     out_dir = Path(out_dir)
     if ctx.is_main:
         log.info("train_depth[%s]: %d tuples at %dx%d, batch %d, %d epochs (lr phases %s), flow model %s, "
-                 "weights %s, %s", s.variant, len(dataset), h, w, s.batch_size, s.epochs,
+                 "loss weights %s, %s", s.variant, len(dataset), h, w, s.batch_size, s.epochs,
                  list(schedule.phases), s.flow_model or "none (P²Net baseline)", s.weights,
                  (f"ImageNet init from {s.imagenet_weights}" if s.imagenet_weights
                   else "random init (no ImageNet weights: allow_random_init)")
@@ -128,12 +128,12 @@ def train_variant(
                        if ctx.is_main else contextlib.nullcontext(tracking.StageRun()))
             with run_ctx as run:
                 run.set_tags({"seed": seed})
-                run.log_params({"effective": {**weights_dict(s), "flow_model": s.flow_model, "seed": seed,
-                                              "lambda_sources": s.lambda_sources}})
+                run.log_params({"effective": {"weights": s.weights, "without": list(s.without),
+                                              "flow_model": s.flow_model, "seed": seed}})
                 result = fit(
                     model, dataset, teacher, step_config,
                     LoopConfig(s.epochs, s.batch_size, schedule, seed=seed, workers=s.workers,
-                               sync_bn=s.sync_bn, progress=progress),
+                               sync_bn=s.sync_bn, progress=progress, val_every=s.val_every),
                     ctx=ctx, checkpoint=state_file, resume=resume, fingerprint=run_fingerprint(s, seed),
                     validate=_measure(validator, truth, ctx.device),
                     on_epoch=lambda row, run=run: run.log_metrics(
@@ -158,8 +158,8 @@ def train_variant(
             except OSError:
                 shutil.copyfile(build_dir / f"seed{s.seeds[0]}.pt", build_dir / "model.pt")
     metrics = {
-        "variant": s.variant, "flow_model": s.flow_model, "weights": weights_dict(s),
-        "lambda_sources": s.lambda_sources, "epochs": s.epochs, "batch_size": s.batch_size,
+        "variant": s.variant, "flow_model": s.flow_model, "weights": dict(s.weights),
+        "without": list(s.without), "epochs": s.epochs, "batch_size": s.batch_size,
         "lr_phases": list(schedule.phases), "train_tuples": len(dataset),
         "steps_per_epoch": len(dataset) // s.batch_size, "seeds": list(s.seeds), "main_seed": s.seeds[0],
         "resnet_init": s.imagenet_weights or "random", "init_depth": s.init_depth, "amp": s.amp,
@@ -190,9 +190,3 @@ def _measure(validator, truth: TrainTruth | None, device):
         return out
 
     return measure
-
-
-def weights_dict(s: TrainSettings) -> dict[str, float]:
-    w = s.weights
-    return {"lambda1": w.lambda1, "lambda2": w.lambda2, "lambda_rigid": w.lambda_rigid, "lambda3": w.lambda3}
-

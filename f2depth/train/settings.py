@@ -1,90 +1,76 @@
-"""Everything one ``train_depth`` variant needs, resolved from params.yaml into a frozen dataclass.
+"""Everything one ``train_depth`` variant needs, resolved from params.yaml into one frozen dataclass.
 
-Variants (params ``variants.<name>``, docs/method.md §1): ``flow_model`` (path of the frozen flow network,
-or null for the P²Net baseline without flow losses), ``rigid_from`` / ``feature_from`` (the YAML file that
-``lambda_rigid`` / ``lambda3`` are read from: ``params.yaml`` for the user's value, or
-``configs/ablation_off.yaml`` (both 0) to switch the term off), and ``dep_flow_model`` / ``dep_flow_code``
-(what DVC tracks for the variant, see dvc.yaml). The name ``params.yaml`` in ``*_from`` means the
-parameter file in use (``--params``), so a copied parameter file behaves like the original.
+A variant (params ``variants.<name>``, docs/method.md §1) says what it is: ``flow``, the frozen flow network
+that supervises depth (a model file; null for the P²Net baseline, which has no flow losses), and
+``without``, the loss terms it switches off (names of ``loss_weights``; a variant without a flow network must
+switch off the flow terms, ``f2depth.train.step.FLOW_TERMS``). Its loss weights are ``loss_weights`` with
+those terms at 0 (the key is not ``off``: YAML 1.1 readers such as PyYAML take ``off`` for false). What
+DVC tracks for each variant (the flow model file) is written in dvc.yaml, not here.
 """
 
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from f2depth import params as P
 from f2depth.depth import DepthModelConfig
 from f2depth.depth.decoder import sigmoid_input_for_depth
-from f2depth.losses import LossWeights
+from f2depth.train.step import FLOW_TERMS, TERMS
 
-PARAMS_NAME = "params.yaml"
 #: train_depth.pose_prior: none = the paper's PoseCNN; geometric = PoseCNN refines a prior from multi-view
 #: geometry (the ``poses`` stage, f2depth.poses), a residual pose as MonoIndoor's (f2depth.depth.model)
 POSE_PRIORS = ("none", "geometric")
+#: ``loss_weights`` keys that are no term of L_depth: flow fine-tuning's smoothness (stages/flow_finetune.py)
+OTHER_WEIGHTS = ("flow_smooth",)
+
+
+@dataclass(frozen=True)
+class Variant:
+    """One ``variants.<name>`` entry of params.yaml."""
+
+    flow: str | None  # the frozen flow network (models/flow_*.pt); null: the P²Net baseline
+    without: tuple[str, ...]  # loss terms (keys of loss_weights) this variant trains with weight 0
 
 
 @dataclass(frozen=True)
 class TrainSettings:
-    variant: str
-    prepared: str
-    keypoints_file: str
-    nyu_labeled: str
-    nyu_splits: str
-    flow_model: str | None
-    weights: LossWeights
-    lambda_sources: dict[str, str]
-    epochs: int
-    batch_size: int
-    lr: tuple[float, ...]
-    lr_epochs: tuple[int, ...]
-    num_points: int
-    augment: bool
-    seeds: tuple[int, ...]
-    workers: int = 0
-    imagenet_weights: str | None = None
-    init_depth: float | None = None
-    val_gt: str = "depths"
-    val_crop: str = "eigen"
-    val_max_images: int | None = 20
-    sync_bn: bool = True
-    amp: bool = False
-    pose_prior: str = "none"  # none (the paper) | geometric (PoseCNN refines f2depth.poses' priors)
-    poses: str | None = None  # data.poses: the pose-prior folder, read when pose_prior is geometric
-    device: str = "auto"
-    checkpoint_dir: str = "tmp/train_depth"
-    diagnostic_tuples: int = 64
-
-    def as_dict(self) -> dict[str, Any]:
-        d = dataclasses.asdict(self)
-        d["lr"], d["lr_epochs"], d["seeds"] = list(self.lr), list(self.lr_epochs), list(self.seeds)
-        return d
-
-
-@dataclass(frozen=True)
-class TrainDepthParams:
-    """The ``train_depth`` section (read by f2depth.params.section, which checks the ranges)."""
+    """The ``train_depth`` section (read by f2depth.params.section, which checks the ranges), then what one
+    variant resolves from the rest of params.yaml (given to the loader by :func:`settings_from_params`)."""
 
     epochs: int = field(metadata={"min": 1})
     batch_size: int = field(metadata={"min": 1})
     lr: tuple[float, ...]
     lr_epochs: tuple[int, ...]
     num_points: int = field(metadata={"min": 1})
-    imagenet_weights: str | None
+    imagenet_weights: str | None  # checked by f2depth.params.pretrained_starts
     amp: bool
-    init_depth: Any  # null or metres inside DepthCNN's range (checked below)
-    pose_prior: str
+    init_depth: Any  # null or metres inside DepthCNN's range (checked below; a float afterwards)
+    pose_prior: str  # none (the paper) | geometric (PoseCNN refines f2depth.poses' priors)
     augment: bool
     seeds: tuple[int, ...]
     workers: int = field(metadata={"min": 0})
     val_max_images: int | None = field(metadata={"min": 1})
+    val_every: int = field(metadata={"min": 1})
     diagnostic_tuples: int = field(metadata={"min": 0})
     sync_bn: bool
     checkpoint_dir: str
+    # ---- resolved for the variant
+    variant: str
+    flow_model: str | None  # variants.<name>.flow
+    weights: dict[str, float]  # term → weight for every term of f2depth.train.step.TERMS, 0 when off
+    without: tuple[str, ...]  # variants.<name>.without
+    prepared: str  # data.prepared
+    keypoints_file: str  # data.keypoints/train.npz
+    nyu_labeled: str  # data.nyu_labeled, data.nyu_splits: the per-epoch validation
+    nyu_splits: str
+    val_gt: str  # evaluate.nyu_gt, evaluate.nyu_crop: validated as the evaluation scores
+    val_crop: str
+    poses: str | None  # data.poses, the pose-prior folder, when pose_prior is geometric
+    device: str
 
     def __post_init__(self) -> None:
         if self.pose_prior not in POSE_PRIORS:
@@ -100,67 +86,62 @@ class TrainDepthParams:
             except (TypeError, ValueError):
                 raise ValueError(f"init_depth must be null or a depth in metres strictly between {lo} and "
                                  f"{hi} (DepthCNN's range), got {self.init_depth!r}") from None
+            object.__setattr__(self, "init_depth", float(self.init_depth))
+
+    def as_dict(self) -> dict[str, Any]:
+        d = dataclasses.asdict(self)
+        for key in ("lr", "lr_epochs", "seeds", "without"):
+            d[key] = list(d[key])
+        return d
 
 
-def _lambda_from(params: dict[str, Any], params_path: str, source: str, key: str, variant: str) -> float:
-    if not isinstance(source, str) or not source:
-        raise P.ParamsError(f"{params_path}: variants.{variant}: give the file {key} is read from "
-                            f"(params.yaml or configs/ablation_off.yaml)")
-    if Path(source).name == PARAMS_NAME and Path(source).parent == Path("."):
-        return P.value(params, key, float, min=0)
-    path = Path(source)
-    if not path.is_file():
-        raise P.ParamsError(f"{params_path}: variants.{variant} reads {key} from {path}, "
-                            "which does not exist")
-    data = yaml.safe_load(path.read_text()) or {}
-    if not isinstance(data, dict) or key not in data:
-        raise P.ParamsError(f"{path}: no '{key}' (variants.{variant} reads it from this file)")
-    return P.value({**data, "_file": str(path)}, key, float, min=0)
+def variant(params: dict[str, Any], name: str) -> Variant:
+    """``variants.<name>``, checked: its keys, its ``without`` names (terms of L_depth) and, without a flow
+    network, that the flow terms are off. Errors are one line naming the key (did-you-mean for a typo)."""
+    path = params.get("_file", P.DEFAULT_PARAMS)
+    variants = P.value(params, "variants", dict)
+    if name not in variants:
+        raise P.ParamsError(f"{path}: unknown variant '{name}'; variants: {sorted(variants)}")
+    v = P.section(params, f"variants.{name}", Variant)
+    P.reject_unknown(path, f"variants.{name}.without", v.without, TERMS, what="terms")
+    on = [t for t in FLOW_TERMS if t not in v.without]
+    if v.flow is None and on:
+        raise P.ParamsError(f"{path}: variants.{name} has no flow network (flow: null) but leaves "
+                            f"{', '.join(on)} on; add {'them' if len(on) > 1 else 'it'} to "
+                            f"variants.{name}.without or give it a flow model")
+    return v
 
 
-def settings_from_params(params: dict[str, Any], variant: str) -> TrainSettings:
-    """Resolve ``variant`` from a loaded params dict (``f2depth.params.load``); errors name the key."""
-    path = params.get("_file", PARAMS_NAME)
-    variants = P.get(params, "variants")
-    if variant not in variants:
-        raise P.ParamsError(f"{path}: unknown variant '{variant}'; variants: {sorted(variants)}")
-    v = variants[variant] or {}
-    flow_model = v.get("flow_model")
-    dep = v.get("dep_flow_model")
-    if flow_model is not None and dep != flow_model:
-        raise P.ParamsError(f"{path}: variants.{variant}.dep_flow_model is {dep!r} but flow_model is "
-                            f"{flow_model!r}; they must name the same file so DVC tracks the model used")
-    rigid_from, feature_from = v.get("rigid_from"), v.get("feature_from")
-    weights = LossWeights(
-        lambda1=P.value(params, "lambda1", float, min=0),
-        lambda2=P.value(params, "lambda2", float, min=0),
-        lambda3=_lambda_from(params, path, feature_from, "lambda3", variant),
-        lambda_rigid=_lambda_from(params, path, rigid_from, "lambda_rigid", variant),
-    )
-    if flow_model is None and (weights.lambda3 != 0 or weights.lambda_rigid != 0):
-        raise P.ParamsError(f"{path}: variants.{variant} has no flow_model but lambda_rigid="
-                            f"{weights.lambda_rigid}, lambda3={weights.lambda3}; read both from "
-                            "configs/ablation_off.yaml or give a flow model")
-    td = P.section(params, "train_depth", TrainDepthParams)
+def loss_weights(params: dict[str, Any], without: Iterable[str] = ()) -> dict[str, float]:
+    """The weight of every term of L_depth (``f2depth.train.step.TERMS``, in that order) from params.yaml
+    ``loss_weights``, 0 for the terms in ``without``. Each must be a number >= 0; a key of ``loss_weights``
+    that is neither a term nor one of :data:`OTHER_WEIGHTS` is an error (a typo in ``dvc exp run -S`` would
+    otherwise train with the old weight)."""
+    path = params.get("_file", P.DEFAULT_PARAMS)
+    P.reject_unknown(path, "loss_weights", P.value(params, "loss_weights", dict), (*TERMS, *OTHER_WEIGHTS))
+    weights = {term: P.value(params, f"loss_weights.{term}", float, min=0) for term in TERMS}
+    off = set(without)
+    return {term: 0.0 if term in off else w for term, w in weights.items()}
+
+
+def settings_from_params(params: dict[str, Any], name: str) -> TrainSettings:
+    """Resolve variant ``name`` from a loaded params dict (``f2depth.params.load``); errors name the key."""
+    v = variant(params, name)
+    geometric = P.get(params, "train_depth.pose_prior", None) == "geometric"
+    resolved = {
+        "variant": name, "flow_model": v.flow, "weights": loss_weights(params, v.without),
+        "without": v.without,
+        "prepared": str(P.get(params, "data.prepared")),
+        "keypoints_file": str(Path(P.get(params, "data.keypoints")) / "train.npz"),
+        "nyu_labeled": str(P.get(params, "data.nyu_labeled")),
+        "nyu_splits": str(P.get(params, "data.nyu_splits")),
+        "val_gt": P.value(params, "evaluate.nyu_gt", str),
+        "val_crop": P.value(params, "evaluate.nyu_crop", str),
+        "poses": str(P.get(params, "data.poses")) if geometric else None,
+        "device": P.value(params, "device", P.Device),
+    }  # fmt: skip
+    settings = P.section(params, "train_depth", TrainSettings, **resolved)
     # Before any work: the paper's pretrained starts (allow_random_init: false) must exist.
     starts = P.pretrained_starts(params, ("train_depth.imagenet_weights",)
-                                 + (("flow_pretrain.checkpoint",) if flow_model is not None else ()))
-    return TrainSettings(
-        variant=variant,
-        prepared=str(P.get(params, "data.prepared")),
-        keypoints_file=str(Path(P.get(params, "data.keypoints")) / "train.npz"),
-        nyu_labeled=str(P.get(params, "data.nyu_labeled")),
-        nyu_splits=str(P.get(params, "data.nyu_splits")),
-        flow_model=str(flow_model) if flow_model is not None else None,
-        weights=weights,
-        lambda_sources={"lambda_rigid": str(rigid_from), "lambda3": str(feature_from)},
-        epochs=td.epochs, batch_size=td.batch_size, lr=td.lr, lr_epochs=td.lr_epochs,
-        num_points=td.num_points, augment=td.augment, seeds=td.seeds, workers=td.workers,
-        imagenet_weights=starts["train_depth.imagenet_weights"],
-        init_depth=None if td.init_depth is None else float(td.init_depth),
-        val_gt=P.value(params, "evaluate.nyu_gt", str), val_crop=P.value(params, "evaluate.nyu_crop", str),
-        val_max_images=td.val_max_images, sync_bn=td.sync_bn, amp=td.amp, pose_prior=td.pose_prior,
-        poses=str(P.get(params, "data.poses")) if td.pose_prior == "geometric" else None,
-        device=P.value(params, "device", P.Device), checkpoint_dir=td.checkpoint_dir,
-        diagnostic_tuples=td.diagnostic_tuples,
-    )
+                                 + (("flow_pretrain.checkpoint",) if v.flow is not None else ()))
+    return dataclasses.replace(settings, imagenet_weights=starts["train_depth.imagenet_weights"])

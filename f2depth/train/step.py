@@ -7,15 +7,17 @@ With pose priors in the batch (``train_depth.pose_prior: geometric``) PoseCNN re
 ``[I−1, I0]`` is ``0_T_−1 = (prior_prev)⁻¹``, that of ``[I0, I+1]`` is ``prior_next``; a sample whose flag is
 False gets PoseCNN's own pose (``DepthModel.predict_pose`` chooses per sample with ``torch.where``).
 
-Terms (the paper §3.2–3.4), all on the un-augmented frames:
-  ph      P²Net's patch photometric loss, minimum over the two sources;
-  sm      edge-aware smoothness of the mean-normalised sigmoid disparity;
-  spp     planar loss over superpixels larger than P²Net's 1000 px at 288×384, scaled by image area;
-  rigid   mean |f_rigid − f_flow| for target → +1 (``f_rigid = rigid_flow(depth, K, T+1)``);
-  feature multi-scale feature synthesis with the frozen network's pyramids, warped by ``f_rigid``.
-rigid and feature need a flow teacher; without one (P²Net baseline) they are left out. A term whose
-weight is 0 but that can be computed (e.g. feature for ``no_feature``) is computed without gradients,
-for the logs only. The sum and the NaN/inf guard are ``f2depth.losses.total_loss``.
+Terms (the paper §3.2–3.4), all on the un-augmented frames, named as their weights in params.yaml
+``loss_weights`` (:data:`TERMS`; ph has weight 1):
+  ph       P²Net's patch photometric loss, minimum over the two sources;
+  smooth   L_sm, edge-aware smoothness of the mean-normalised sigmoid disparity;
+  planar   L_spp, planar loss over superpixels larger than P²Net's 1000 px at 288×384, scaled by image area;
+  rigid    L_rigid, mean |f_rigid − f_flow| for target → +1 (``f_rigid = rigid_flow(depth, K, T+1)``);
+  feature  L_feature, multi-scale feature synthesis with the frozen network's pyramids, warped by ``f_rigid``.
+rigid and feature need a flow teacher (:data:`FLOW_TERMS`); without one (P²Net baseline) they are left out.
+A term whose weight is 0 but that can be computed (e.g. feature for ``no_feature``) is computed without
+gradients, for the logs only. ``f2depth.losses.total_loss`` multiplies each term by its weight by name,
+sums them and guards against NaN/inf.
 
 Mixed precision (``train_depth.amp``, off in the paper's profile: P²Net trains in float32): with ``amp``
 the networks run under ``torch.autocast`` — float16 on CUDA (with a GradScaler in the loop), bfloat16 on
@@ -24,7 +26,7 @@ a CPU —; the geometry and every loss run in float32 with autocast off.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from contextlib import nullcontext
 from dataclasses import dataclass
 
@@ -33,7 +35,6 @@ from torch import nn
 
 from f2depth.geometry import invert_pose, rigid_flow
 from f2depth.losses import (
-    LossWeights,
     NonFiniteLossError,
     edge_aware_smoothness,
     feature_synthesis_loss,
@@ -45,10 +46,17 @@ from f2depth.losses import (
 from f2depth.precision import autocast, full_precision
 from f2depth.train.teacher import FlowTeacher, TeacherOutput
 
+#: The weighted terms of L_depth (history.csv's columns after ph, in this order); each one's weight is
+#: params.yaml ``loss_weights.<name>``. Adding a term: compute it in :func:`loss_terms`, name it
+#: here (and in FLOW_TERMS when it needs the flow network) and give it its key in ``loss_weights``.
+TERMS = ("smooth", "planar", "rigid", "feature")
+#: The terms that need the frozen flow network: a variant without one (``flow: null``) must switch them off.
+FLOW_TERMS = ("rigid", "feature")
+
 
 @dataclass(frozen=True)
 class StepConfig:
-    weights: LossWeights
+    weights: Mapping[str, float]  # term → weight, every name of TERMS (f2depth.train.settings.loss_weights)
     min_area: float  # superpixels of more pixels take part in L_spp
     min_depth: float = 0.1
     max_depth: float = 10.0
@@ -113,7 +121,7 @@ def teacher_forward(teacher: FlowTeacher | None, batch: dict[str, torch.Tensor],
 
 def loss_terms(net: NetOutput, batch: dict[str, torch.Tensor], flow: TeacherOutput | None,
                config: StepConfig) -> dict[str, torch.Tensor]:
-    """The scalar loss terms (float32, autocast off); see the module docstring."""
+    """The scalar loss terms by name (float32, autocast off); see the module docstring."""
     w = config.weights
     device = net.depth.device
     ctx = full_precision(device) if config.amp else nullcontext()
@@ -122,19 +130,19 @@ def loss_terms(net: NetOutput, batch: dict[str, torch.Tensor], flow: TeacherOutp
         terms = {
             "ph": patch_photometric_loss(target, [batch["prev"].float(), batch["next"].float()], net.depth, K,
                                          [net.T_prev, net.T_next], batch["points"]),
-            "sm": edge_aware_smoothness(net.disp, target),
-            "spp": planar_loss(net.depth, torch.linalg.inv(K), batch["segments"], min_area=config.min_area,
-                               min_depth=config.min_depth, max_depth=config.max_depth),
+            "smooth": edge_aware_smoothness(net.disp, target),
+            "planar": planar_loss(net.depth, torch.linalg.inv(K), batch["segments"], min_area=config.min_area,
+                                  min_depth=config.min_depth, max_depth=config.max_depth),
         }
         if flow is None:
             return terms
         grad = torch.is_grad_enabled()
-        with torch.set_grad_enabled(grad and (w.lambda_rigid != 0 or w.lambda3 != 0)):
+        with torch.set_grad_enabled(grad and (w["rigid"] != 0 or w["feature"] != 0)):
             f_rigid = rigid_flow(net.depth, K, net.T_next)
-        with torch.set_grad_enabled(grad and w.lambda_rigid != 0):
+        with torch.set_grad_enabled(grad and w["rigid"] != 0):
             terms["rigid"] = rigid_flow_loss(f_rigid, flow.flow)
         if flow.feats_tgt:
-            with torch.set_grad_enabled(grad and w.lambda3 != 0):
+            with torch.set_grad_enabled(grad and w["feature"] != 0):
                 terms["feature"] = feature_synthesis_loss(flow.feats_tgt, flow.feats_src, f_rigid)
     return terms
 
@@ -144,7 +152,7 @@ def compute_loss(model: nn.Module, batch: dict[str, torch.Tensor], teacher: Flow
     """Forward everything for one batch → (L_depth, {term: float, "total": float}).
 
     Raises ``NonFiniteLossError`` naming the first NaN/inf term. Pyramid features are computed when a
-    teacher is given (L_feature is logged even with λ3 = 0).
+    teacher is given (L_feature is logged even with its weight 0).
     """
     net = network_forward(model, batch, config.amp)
     flow = teacher_forward(teacher, batch, features=True, amp=config.amp)
