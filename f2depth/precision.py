@@ -33,3 +33,15 @@ def full_precision(device: torch.device | str) -> AbstractContextManager:
 def grad_scaler(device: torch.device | str, enabled: bool) -> torch.amp.GradScaler:
     """A GradScaler for float16 on CUDA; a disabled (pass-through) one otherwise."""
     return torch.amp.GradScaler("cuda", enabled=enabled and torch.device(device).type == "cuda")
+
+
+def backward_and_step(loss: torch.Tensor, optimizer: torch.optim.Optimizer,
+                      scaler: torch.amp.GradScaler | None = None) -> None:
+    """Back-propagate ``loss`` and update, through ``scaler`` when it is an enabled (CUDA float16) one."""
+    if scaler is not None and scaler.is_enabled():
+        scaler.scale(loss).backward()
+        scaler.step(optimizer)
+        scaler.update()
+    else:
+        loss.backward()
+        optimizer.step()

@@ -45,7 +45,7 @@ from f2depth.flow.finetune_data import FlowPairs, GTPair, collate
 from f2depth.flow.loss import SINTEL_FT, FlowLossConfig, flow_loss
 from f2depth.flow.network import FlowNetwork, make_optimizer
 from f2depth.flow.patch_loss import FinetuneLossConfig, finetune_loss
-from f2depth.precision import autocast, full_precision, grad_scaler
+from f2depth.precision import autocast, backward_and_step, full_precision, grad_scaler
 
 LOSSES = ("patch", "full")
 TRAIN_COLUMNS = ("loss", "photometric", "smooth", "used_pixels", "coverage", "noc_fraction")
@@ -179,13 +179,7 @@ def train_step(model: FlowNetwork, optimizer: torch.optim.Optimizer, batch: dict
     optimizer.zero_grad(set_to_none=True)
     if not torch.isfinite(loss):
         raise FloatingPointError(f"loss is {loss.item()}")
-    if scaler is not None:
-        scaler.scale(loss).backward()
-        scaler.step(optimizer)
-        scaler.update()
-    else:
-        loss.backward()
-        optimizer.step()
+    backward_and_step(loss, optimizer, scaler)
     return stats
 
 

@@ -33,6 +33,7 @@ from f2depth.epochs import EpochLoop, clear_state
 from f2depth.epochs import fingerprint as hash_settings
 from f2depth.flow.loss import SINTEL_FT, SINTEL_RAW, flow_loss
 from f2depth.flow.network import FlowNetwork, make_optimizer, msra_init
+from f2depth.precision import backward_and_step
 
 HISTORY_COLUMNS = ("epoch", "loss", "photometric", "smooth", "flow_mean", "noc_fraction", "steps",
                    "skipped_steps", "census", "seconds")
@@ -108,8 +109,7 @@ def pretrain(model: FlowNetwork, pairs: Sequence[SintelPair], cfg: PretrainConfi
         optim.zero_grad(set_to_none=True)
         if not torch.isfinite(loss):
             raise FloatingPointError(f"loss is {loss.item()}")
-        loss.backward()
-        optim.step()
+        backward_and_step(loss, optim)
         return stats
 
     t0 = time.perf_counter()

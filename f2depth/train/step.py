@@ -43,7 +43,7 @@ from f2depth.losses import (
     rigid_flow_loss,
     total_loss,
 )
-from f2depth.precision import autocast, full_precision
+from f2depth.precision import autocast, backward_and_step, full_precision
 from f2depth.train.teacher import FlowTeacher, TeacherOutput
 
 #: The weighted terms of L_depth (history.csv's columns after ph, in this order); each one's weight is
@@ -186,11 +186,5 @@ def train_step(
         agree(error)
     if error is not None:
         raise error
-    if scaler is not None and scaler.is_enabled():
-        scaler.scale(loss).backward()
-        scaler.step(optimizer)
-        scaler.update()
-    else:
-        loss.backward()
-        optimizer.step()
+    backward_and_step(loss, optimizer, scaler)
     return loss.detach(), logs
