@@ -26,7 +26,6 @@ from f2depth import params as P
 from f2depth import tracking
 from f2depth.data.prepared import PreparedSet
 from f2depth.epochs import file_digest, write_history
-from f2depth.eval.tables import format_value as fmt
 from f2depth.flow.checkpoint import load_flow_model, save_flow_model
 from f2depth.flow.finetune import (
     HISTORY_COLUMNS,
@@ -39,6 +38,7 @@ from f2depth.flow.finetune import (
 from f2depth.flow.finetune_data import FlowPairs, gt_pairs, split_pairs
 from f2depth.io import write_json
 from f2depth.keypoints.store import KeypointFile
+from f2depth.numbers import format_number as fmt
 from f2depth.stage import run_stage
 
 

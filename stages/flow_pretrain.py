@@ -25,11 +25,11 @@ from f2depth import params as P
 from f2depth import tracking
 from f2depth.data.sintel import list_pairs, list_sequences
 from f2depth.epochs import write_history
-from f2depth.eval.tables import format_value as fmt
 from f2depth.flow import NETWORKS, build_network, load_flow_model, save_flow_model
 from f2depth.flow.pretrain import HISTORY_COLUMNS, PretrainConfig, clear_resume, pretrain
 from f2depth.flow.validate import evaluate_prepared, evaluate_sintel
 from f2depth.io import write_json
+from f2depth.numbers import format_number as fmt
 from f2depth.stage import run_stage
 
 METRICS = "metrics/flow_pretrain.json"

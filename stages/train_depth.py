@@ -19,8 +19,8 @@ import sys
 from pathlib import Path
 
 from f2depth import params as P
-from f2depth.eval.tables import format_value as fmt
 from f2depth.losses import NonFiniteLossError
+from f2depth.numbers import format_number as fmt
 from f2depth.stage import run_stage
 from f2depth.train.distributed import cleanup, init_from_env
 from f2depth.train.run import train_variant

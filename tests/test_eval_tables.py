@@ -90,6 +90,14 @@ def test_format_value_rules():
     assert T.format_value([0.2]) == "0.200"  # one seed: no ±
     assert T.format_value([0.1, 0.3]) == f"0.200 ± {math.sqrt(0.02):.3f}"
     assert T.format_value(True) == "✓" and T.format_value(False, latex=True) == r"$\times$"
+
+
+def test_log_lines_and_cells_share_one_number_format():
+    from f2depth.numbers import format_number
+
+    for value in (0.15349, 17000, np.int64(7), np.float32(0.5), None, float("nan")):
+        assert format_number(value) == T.format_value(value)
+    assert format_number(0.15349, 2) == "0.15"
     mean, std, n = T.seed_stats([1.0, 2.0, 3.0])
     assert (mean, std, n) == (2.0, 1.0, 3)
 

@@ -27,6 +27,7 @@ import numpy as np
 
 from f2depth.eval.metrics import METRIC_NAMES
 from f2depth.io import write_text
+from f2depth.numbers import format_number
 
 QUOTED = "quoted"
 RULE: dict[str, Any] = {"_rule": True}
@@ -94,10 +95,8 @@ def format_value(value: Any, digits: int = 3, latex: bool = False) -> str:
             return format_value(mean, digits, latex)
         pm = r" $\pm$ " if latex else " ± "
         return f"{mean:.{digits}f}{pm}{std:.{digits}f}"
-    if isinstance(value, (int, np.integer)):
-        return str(int(value))
-    if isinstance(value, (float, np.floating)):
-        return "-" if math.isnan(value) else f"{float(value):.{digits}f}"
+    if isinstance(value, (int, float, np.integer, np.floating)):
+        return format_number(value, digits)
     return latex_escape(str(value)) if latex else str(value)
 
 
