@@ -21,6 +21,17 @@ def module_file(name: str) -> Path | None:
     return None
 
 
+def lazy_homes(package: str) -> dict[str, str]:
+    """``_HOMES`` of a package whose ``__init__`` imports its names on first use (name → submodule)."""
+    init = ROOT.joinpath(*package.split("."), "__init__.py")
+    if not init.is_file():
+        return {}
+    for node in ast.parse(init.read_text()).body:
+        if isinstance(node, ast.Assign) and any(getattr(t, "id", "") == "_HOMES" for t in node.targets):
+            return ast.literal_eval(node.value)
+    return {}
+
+
 def imported_modules(path: Path) -> set[str]:
     """Library modules ``path`` imports (``from f2depth.x import y`` counts ``f2depth.x.y`` when y is one)."""
     names: set[str] = set()
@@ -29,7 +40,8 @@ def imported_modules(path: Path) -> set[str]:
             names.update(alias.name for alias in node.names)
         elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
             names.add(node.module)
-            names.update(f"{node.module}.{alias.name}" for alias in node.names)
+            homes = lazy_homes(node.module)
+            names.update(f"{node.module}.{homes.get(alias.name, alias.name)}" for alias in node.names)
     found = set()
     for name in names:
         if name.split(".")[0] != "f2depth":
@@ -78,6 +90,9 @@ def test_the_checker_follows_imports_inside_functions_and_packages(tmp_path):
             "f2depth/geometry.py"} <= files
     assert not covered(ROOT / "f2depth/eval/scoring.py", ["f2depth/eval/nyu.py", "f2depth/train"])
     assert covered(ROOT / "f2depth/eval/scoring.py", ["f2depth/eval"])
+    lazy = tmp_path / "lazy.py"
+    lazy.write_text("from f2depth.keypoints import KeypointFile\n")
+    assert ROOT / "f2depth/keypoints/store.py" in closure(lazy)  # a name the package imports on first use
 
 
 def test_every_stage_declares_the_library_modules_it_imports():
