@@ -62,7 +62,8 @@ def config_from_params(p: dict, loss: str = "patch") -> tuple[FinetuneConfig, Fi
                      seed=P.value(p, "seed", int), smooth_weight=smooth)
 
 
-EPE_KEYS = ("epe_all", "epe_noc", "epe_low_texture", "epe_occ", "magnitude_ratio", "cosine", "pairs")
+EPE_KEYS = ("epe_all", "epe_noc", "epe_low_texture", "epe_occ", "magnitude_ratio", "cosine",
+            "swap_consistency", "pairs")
 
 
 def _epe(d: dict) -> dict:
@@ -132,7 +133,8 @@ def main(argv: list[str]) -> None:
     for name, m in (("pretrained", before["test"]), ("fine-tuned", after["test"])):
         print(f"flow_finetune[{loss}] {name}: EPE all {fmt(m['epe_all'])}, noc {fmt(m['epe_noc'])}, "
               f"low-texture {fmt(m['epe_low_texture'])}, |f|/|gt| {fmt(m['magnitude_ratio'], 2)}, "
-              f"cos {fmt(m['cosine'], 2)} on {m['pairs']} test pairs")
+              f"cos {fmt(m['cosine'], 2)}, swap cos {fmt(m['swap_consistency'], 2)} on {m['pairs']} "
+              "test pairs")
     print(f"flow_finetune[{loss}]: {len(split.train)} training pairs, {info['epochs_run']} epochs in "
           f"{metrics['seconds']} s → {model_path}")
 

@@ -1,36 +1,45 @@
-"""DVC stage `flow_pretrain`: the flow network (`flow_pretrain.network`, PWC-Lite) imported from ARFlow or
-pretrained with ARFlow's loss.
+"""DVC stage `flow_pretrain`: the flow network (`flow_pretrain.network`, PWC-Lite) imported from ARFlow,
+bootstrapped on generated FlyingChairs-style pairs, or pretrained with ARFlow's loss.
 
 Usage: python stages/flow_pretrain.py [params.yaml]
 
 With `flow_pretrain.checkpoint` set, that ARFlow *.pth.tar (or another state dict of the network) is
-imported. Otherwise the network is trained from scratch (ARFlow's schedule, f2depth.flow.pretrain) on the
-Sintel-layout set at `data.sintel` — the synthetic animated set (`source: synthetic`) or MPI Sintel
-(`source: sintel`) — without its last `holdout` sequences, resuming from `resume_dir` after an
-interruption. Writes `model` (recording the network's name),
-metrics/flow_pretrain.json (EPE, magnitude ratio Σ|flow|/Σ|gt| and mean cosine to the true flow of the
-model and of zero flow on the held-out sequences and, with `eval_prepared`, on the prepared pairs with
-ground truth), metrics/flow_pretrain/history.csv (one row per training epoch; only the header for an
-imported model) and colour-wheel figures into `figure_dir`.
+imported (the paper). Otherwise the network is trained from scratch, resuming from `resume_dir` after an
+interruption:
+- `source: chairs` (the CPU default): supervised on FlyingChairs-style pairs generated on the fly
+  (f2depth.synth.chairs; textures: procedural plus crops of the training sequences at `data.sintel`)
+  with the bootstrap of f2depth.flow.bootstrap (`flow_pretrain.chairs`);
+- `source: synthetic | sintel`: ARFlow's unsupervised schedule (f2depth.flow.pretrain) on the
+  Sintel-layout set at `data.sintel` (the animated set or MPI Sintel).
+Either way the last `holdout` sequences of `data.sintel` are never trained on. Writes `model` (recording
+the network's name), metrics/flow_pretrain.json (EPE, magnitude ratio Σ|flow|/Σ|gt|, mean cosine to the
+true flow and swap consistency of the model, beside zero flow, on the held-out sequences, on the held-out
+generated pairs (chairs) and, with `eval_prepared`, on the prepared pairs with ground truth),
+metrics/flow_pretrain/history.csv (one row per training epoch; only the header for an imported model) and
+colour-wheel figures into `figure_dir`.
 """
 
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from typing import Literal
 
+import numpy as np
 import torch
 
 from f2depth import params as P
 from f2depth import tracking
+from f2depth.data.images import read_image
 from f2depth.data.sintel import list_pairs, list_sequences
 from f2depth.epochs import write_history
 from f2depth.flow import NETWORKS, build_network, load_flow_model, save_flow_model
+from f2depth.flow import bootstrap as chairs_route
 from f2depth.flow.pretrain import HISTORY_COLUMNS, PretrainConfig, clear_resume, pretrain
-from f2depth.flow.validate import evaluate_prepared, evaluate_sintel
+from f2depth.flow.validate import evaluate_generated, evaluate_prepared, evaluate_sintel
 from f2depth.io import write_json
 from f2depth.numbers import format_number as fmt
 from f2depth.stage import run_stage
+from f2depth.synth.chairs import texture_pool
 
 METRICS = "metrics/flow_pretrain.json"
 HISTORY = "metrics/flow_pretrain/history.csv"
@@ -42,7 +51,8 @@ class PretrainStage:
 
     network: str
     checkpoint: str | None
-    source: Literal["synthetic", "sintel"]
+    source: Literal["chairs", "synthetic", "sintel"]
+    chairs: chairs_route.BootstrapConfig
     passes: tuple[Literal["clean", "final"], ...]
     holdout: int = field(metadata={"min": 1})
     eval_prepared: bool
@@ -73,6 +83,18 @@ def split_sequences(p: dict, stage: PretrainStage) -> tuple[list[str], list[str]
     return seqs[:-stage.holdout], seqs[-stage.holdout:]
 
 
+def pretrain_on_chairs(model, stage: PretrainStage, seed: int, train_frames: list, device: str, run
+                       ) -> tuple[dict, tuple]:
+    """The chairs route → (training result, held-out generated pairs)."""
+    cfg = stage.chairs
+    images = [read_image(path) for path in train_frames]
+    pool = texture_pool(cfg.data, np.random.default_rng([seed, 7]), images)
+    result = chairs_route.pretrain_chairs(
+        model, pool, cfg, seed, stage.network, stage.resume_dir, device,
+        on_epoch=lambda epoch, st: run.log_metrics({f"train.{k}": v for k, v in st.items()}, epoch))
+    return result, chairs_route.heldout_pairs(cfg, seed, pool)
+
+
 def main(argv: list[str]) -> None:
     p = P.load(argv[1] if len(argv) > 1 else P.DEFAULT_PARAMS)
     cfg, stage = config_from_params(p)
@@ -89,15 +111,23 @@ def main(argv: list[str]) -> None:
         if stage.checkpoint:
             model = load_flow_model(stage.checkpoint, stage.network)
             metrics["imported"] = stage.checkpoint
+        elif stage.source == "chairs":
+            torch.manual_seed(cfg.seed)
+            model = build_network(stage.network)
+            frames = [pair.image1 for pair in list_pairs(root, passes[:1], train_seqs)]
+            metrics["training"], generated = pretrain_on_chairs(model, stage, cfg.seed, frames, device, run)
         else:
             torch.manual_seed(cfg.seed)
             model = build_network(stage.network)
             metrics["training"] = pretrain(
                 model, list_pairs(root, passes, train_seqs), cfg, stage.resume_dir, device,
                 on_epoch=lambda epoch, st: run.log_metrics({f"train.{k}": v for k, v in st.items()}, epoch))
-        save_flow_model(stage.model, model, config={"origin": metrics["source"], **vars(cfg)},
+        made_with = asdict(stage.chairs) if metrics["source"] == "chairs" else vars(cfg)
+        save_flow_model(stage.model, model, config={"origin": metrics["source"], **made_with},
                         params=P.get(p, "flow_pretrain"))
         model.to(device).eval()
+        if metrics["source"] == "chairs":
+            metrics["generated"] = evaluate_generated(model, generated, device, figures, n_fig)
         for pass_name in passes:
             metrics[f"heldout_{pass_name}"] = evaluate_sintel(
                 model, list_pairs(root, (pass_name,), test_seqs, require_flow=True), (cfg.height, cfg.width),
@@ -106,9 +136,11 @@ def main(argv: list[str]) -> None:
             metrics["prepared"] = evaluate_prepared(model, P.get(p, "data.prepared"),
                                                     stage.eval_prepared_pairs, device, figures, n_fig)
         metrics["seconds"] = round(time.perf_counter() - t0, 1)
-        write_history(HISTORY, metrics.get("training", {}).get("history", []), HISTORY_COLUMNS)
+        columns = chairs_route.HISTORY_COLUMNS if metrics["source"] == "chairs" else HISTORY_COLUMNS
+        write_history(HISTORY, metrics.get("training", {}).get("history", []), columns)
         write_json(METRICS, metrics)
-        run.log_metrics({k: v for k, v in metrics.items() if k.startswith(("heldout_", "prepared"))})
+        run.log_metrics({k: v for k, v in metrics.items()
+                         if k.startswith(("heldout_", "prepared", "generated"))})
         run.log_artifact(stage.model)
         run.log_artifact(HISTORY)
         run.log_artifact(figures, "figures")
@@ -125,6 +157,13 @@ def main(argv: list[str]) -> None:
                 print(f"flow_pretrain: WARNING {name}: flow(2→1) is not the reverse of flow(1→2) "
                       f"(swap cos {m['swap_consistency']:.2f}): the network's output does not follow the "
                       "images; its EPE and cosine there measure a constant field (docs/flow_pretrain.md)")
+    training = metrics.get("training", {})
+    if "after_features" in training:
+        start, after = training.get("start", {}), training["after_features"]
+        print("flow_pretrain: per-pixel cost-volume top-1 on held-out generated pairs (chance 1/81 = 0.012): "
+              + ", ".join(f"stride {s}: {fmt(start.get(f'heldout_top1_s{s}'), 2)} after the init → "
+                          f"{fmt(after.get(f'heldout_top1_s{s}'), 2)} after phase A"
+                          for s in stage.chairs.matching_strides))
     print(f"flow_pretrain: {metrics['seconds']} s → {stage.model}")
 
 

@@ -27,9 +27,11 @@ TOLERANCES: dict[str, list[tuple[str, float]]] = {
     "geometry": [("", 1e-6)],
     "flow_losses": [("", 1e-6)],
     "metrics": [("", 1e-6)],
-    "depth_train_step": [(r"^\w+\.g\.", 1e-4), (r"^\w+\.[wb]\.", 3e-5), ("", 1e-6)],
+    # the loss after one step of a random network: float32 reductions in an order that the CPU kernels choose
+    "depth_train_step": [(r"^\w+\.g\.", 1e-4), (r"^\w+\.[wb]\.", 3e-5),
+                         (r"^\w+\.(log\.(ph|total)|loss)$", 1e-5), ("", 1e-6)],
     "flow_finetune_step": [("", 1e-6)],
-    "evaluation": [("", 1e-6)],
+    "evaluation": [(r"sq_rel$", 1e-5), ("", 1e-6)],  # sq_rel: a tiny mean of squares, float32 round-off
     "keypoints_prepare": [("", 1e-6)],
 }
 

@@ -17,7 +17,7 @@ import yaml
 
 from f2depth.data.sintel import list_pairs, write_flo
 from f2depth.epochs import load_state
-from f2depth.flow import FlowNetwork, PWCLite, load_flow_model
+from f2depth.flow import FlowNetwork, PWCLite, bootstrap, load_flow_model
 from f2depth.flow.pretrain import HISTORY_COLUMNS, PretrainConfig, clear_resume, pretrain, run_fingerprint
 from f2depth.flow.validate import evaluate_sintel
 from f2depth.params import ParamsError
@@ -137,6 +137,17 @@ def test_swap_consistency_exposes_a_constant_network_that_scores_perfectly(tmp_p
     assert matched["swap_consistency"] == pytest.approx(1)
 
 
+def tiny_chairs() -> dict:
+    """A ``flow_pretrain.chairs`` section that runs in seconds."""
+    return {"data": {"height": 64, "width": 64, "max_shift": 4, "small_share": 0.25, "rotation_deg": 5,
+                     "scale": 0.05, "min_shapes": 1, "max_shapes": 2, "min_size": 0.2, "max_size": 0.4,
+                     "supersample": 1, "textures": 3, "image_crops": 2},
+            "batch_size": 2, "steps_per_epoch": 2, "feature_epochs": 1, "feature_lr": 2e-3, "epochs": 1,
+            "lr": 3e-4, "matching_weight": 0.5, "matching_strides": [4, 8],
+            "w_scales": [0.32, 0.08, 0.02, 0.01, 0.005],
+            "calibration_pairs": 2, "heldout_pairs": 3}
+
+
 def run_stage(tmp_path: Path, monkeypatch, **section) -> dict:
     """The stage in ``tmp_path`` on :func:`make_set`'s sequences with tiny settings, ``section`` overriding
     keys of ``flow_pretrain``; returns its metrics."""
@@ -150,7 +161,8 @@ def run_stage(tmp_path: Path, monkeypatch, **section) -> dict:
                           "width": 64, "raw_epochs": 1, "census_epochs": 1, "batch_size": 4, "lr": 1e-4,
                           "init": "msra", "holdout": 1, "passes": ["clean", "final"], "eval_prepared": False,
                           "eval_prepared_pairs": 4, "figures": 1, "figure_dir": "reports/flow",
-                          "model": "models/flow_pretrained.pt", "resume_dir": "tmp/flow_pretrain", **section},
+                          "model": "models/flow_pretrained.pt", "resume_dir": "tmp/flow_pretrain",
+                          "chairs": tiny_chairs(), **section},
     }
     (tmp_path / "params.yaml").write_text(yaml.safe_dump(params))
     spec = importlib.util.spec_from_file_location("flow_pretrain_stage", STAGE)
@@ -175,6 +187,21 @@ def test_stage_end_to_end(tmp_path, monkeypatch):
     assert isinstance(model, PWCLite)
     assert len(list((tmp_path / "reports" / "flow").glob("*.png"))) == 2
     assert not (tmp_path / "tmp" / "flow_pretrain").exists()  # resume state removed after success
+
+
+def test_stage_chairs_route_end_to_end(tmp_path, monkeypatch):
+    metrics = run_stage(tmp_path, monkeypatch, source="chairs", passes=["clean"])
+    assert metrics["source"] == "chairs" and metrics["random_init"] is True
+    assert metrics["generated"]["pairs"] == 3 and metrics["heldout_clean"]["pairs"] == 2
+    assert set(metrics["generated"]["model"]) >= {"epe_all", "swap_consistency", "cosine", "magnitude_ratio"}
+    training = metrics["training"]
+    assert [r["phase"] for r in training["history"]] == ["features", "all"]
+    assert {"heldout_top1_s4", "heldout_top1_s8"} <= set(training["after_features"])
+    history = list(csv.DictReader((tmp_path / "metrics" / "flow_pretrain" / "history.csv").open()))
+    assert list(history[0]) == list(bootstrap.HISTORY_COLUMNS) and len(history) == 2
+    model = load_flow_model(tmp_path / "models" / "flow_pretrained.pt")
+    assert isinstance(model, PWCLite)
+    assert not (tmp_path / "tmp" / "flow_pretrain").exists()
 
 
 def test_stage_imports_an_arflow_checkpoint(tmp_path, monkeypatch):

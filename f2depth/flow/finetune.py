@@ -126,14 +126,17 @@ def batch_loss(flows_fw: Sequence[torch.Tensor], flows_bw: Sequence[torch.Tensor
 @torch.no_grad()
 def evaluate_epe(model: FlowNetwork, pairs: Iterable[GTPair], device: str = "cpu") -> dict[str, Any]:
     """EPE of the forward flow on ground-truth pairs: ``{"pairs", "epe_all", "epe_noc", "epe_occ",
-    "epe_low_texture", "pixels_*", "magnitude_ratio", "cosine"}`` (EPE None for empty pixel sets or no
-    pairs; ratio Σ|flow|/Σ|gt| and mean cosine as in :class:`EPEAccumulator`)."""
+    "epe_low_texture", "pixels_*", "magnitude_ratio", "cosine", "swap_consistency"}`` (EPE None for empty
+    pixel sets or no pairs; ratio Σ|flow|/Σ|gt|, mean cosine and the swapped-frames check as in
+    :class:`EPEAccumulator`)."""
     was_training = model.training
     model.eval()
     acc, n = EPEAccumulator(), 0
     for g in pairs:
-        pred = model(g.img1.to(device), g.img2.to(device), with_backward=False)[0][0].float().cpu()
+        a, b = g.img1.to(device), g.img2.to(device)
+        pred = model(a, b, with_backward=False)[0][0].float().cpu()
         acc.add(pred, g.flow, g.occluded, g.low_texture, g.valid)
+        acc.add_swapped(pred, model(b, a, with_backward=False)[0][0].float().cpu())
         n += 1
     model.train(was_training)
     return {"pairs": n, **acc.result()}

@@ -29,6 +29,9 @@ class FlowNetwork(nn.Module, ABC):
 
     ``architecture()``: the constructor's keyword arguments that fix the weights' shapes; the checkpoint
     records them and passes them back when it rebuilds the network.
+
+    ``feature_module()`` and ``flow_heads()``: what the supervised bootstrap (f2depth.flow.bootstrap)
+    trains first and zeroes; the defaults (the whole network, none) work for any network.
     """
 
     @abstractmethod
@@ -40,6 +43,16 @@ class FlowNetwork(nn.Module, ABC):
 
     def architecture(self) -> dict[str, Any]:
         return {}
+
+    def feature_module(self) -> nn.Module:
+        """The submodule that computes :meth:`features` (what the chairs bootstrap's phase A trains alone;
+        f2depth.flow.bootstrap). Default: the whole network."""
+        return self
+
+    def flow_heads(self) -> list[nn.Conv2d]:
+        """The convolutions whose outputs are added to the flow (zeroed by the chairs bootstrap, so the
+        first output is zero flow). Default: none."""
+        return []
 
 
 def msra_init(model: nn.Module, generator: torch.Generator | None = None) -> nn.Module:

@@ -10,8 +10,10 @@ Initialisation (``init``): ``msra`` (default) draws every convolution from Kaimi
 zero biases — the body of ARFlow's ``init_weights``, which never runs there (ARFlow's ``models/pwclite.py``);
 ``pytorch`` keeps PyTorch's default, i.e. what ARFlow really trains from. With the default the pyramid
 features are so small that the cost volume is ~1e-3 of the decoder's other inputs and the output
-hardly depends on the images for the first hundreds of steps; with MSRA the correlation peaks are
-visible from the start, which is what makes a CPU-sized pretraining possible.
+hardly depends on the images for the first hundreds of steps. With MSRA the correlation peak is at the
+true shift only on average over the image; per pixel it is at chance, and a CPU-sized run of this schedule
+settles on one image-independent field (docs/flow_pretrain.md). The CPU default therefore takes the
+supervised chairs route (f2depth.flow.bootstrap).
 
 The epoch loop, resume (``<resume_dir>/last.pt``, deleted by :func:`clear_resume` once the model is
 written) and the non-finite policy (a NaN/inf step is skipped and counted) are :mod:`f2depth.epochs`.

@@ -127,6 +127,13 @@ class PWCLite(FlowNetwork):
         """
         return self.feature_pyramid_extractor(img.contiguous(memory_format=self.memory_format))
 
+    def feature_module(self) -> nn.Module:
+        return self.feature_pyramid_extractor
+
+    def flow_heads(self) -> list[nn.Conv2d]:
+        """The decoder's ``predict_flow`` and the context network's last convolution."""
+        return [self.flow_estimators.predict_flow[0], self.context_networks.convs[-1][0]]
+
     def decode(self, pyr1: list[torch.Tensor], pyr2: list[torch.Tensor]) -> list[torch.Tensor]:
         """ARFlow ``forward_2_frames`` on two pyramids (finest first) → five flows 1/4…1/64, finest first."""
         flow: torch.Tensor | None = None

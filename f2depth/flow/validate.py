@@ -1,5 +1,6 @@
-"""Scoring a flow model against ground truth: Sintel-layout pairs (``.flo`` + occlusions) and prepared
-frame pairs whose flow follows from ground-truth depth and pose (rigid scene).
+"""Scoring a flow model against ground truth: Sintel-layout pairs (``.flo`` + occlusions), generated
+FlyingChairs-style pairs (f2depth.synth.chairs) and prepared frame pairs whose flow follows from
+ground-truth depth and pose (rigid scene).
 
 Predictions are made at a chosen network size (frames area-resized) and the flow is resized back to the
 ground-truth resolution with its components rescaled (ARFlow's protocol), then scored by
@@ -69,6 +70,23 @@ def evaluate_sintel(model: FlowNetwork, pairs: Sequence[SintelPair], size: tuple
             save_figure(Path(figure_dir) / f"{pair.sequence}_{pair.pass_name}_{pair.frame:04d}.png",
                         d["image1"], gt, pred)
     return _result(acc, zero, len(pairs))
+
+
+def evaluate_generated(model: FlowNetwork, pairs: Sequence[torch.Tensor], device: str = "cpu",
+                       figure_dir: str | os.PathLike | None = None, figures: int = 0) -> dict:
+    """EPE of ``model`` and of zero flow on generated pairs ``img1, img2 (n,3,H,W)``, ``flow (n,2,H,W)``,
+    ``occluded (n,1,H,W)`` (f2depth.synth.chairs.render_pairs), at their own size."""
+    img1, img2, flow, occluded = pairs
+    acc, zero = EPEAccumulator(), EPEAccumulator()
+    chosen = set(np.linspace(0, len(img1) - 1, figures).round().astype(int).tolist()) if figures else set()
+    for i in range(len(img1)):
+        a, b = img1[i:i + 1], img2[i:i + 1]
+        pred = _score(model, acc, zero, a, b, flow[i:i + 1], occluded[i:i + 1], low_texture_mask(a), None,
+                      device)
+        if figure_dir is not None and i in chosen:
+            rgb = (a[0].permute(1, 2, 0) * 255).round().to(torch.uint8).numpy()
+            save_figure(Path(figure_dir) / f"generated_{i:03d}.png", rgb, flow[i:i + 1], pred)
+    return _result(acc, zero, len(img1))
 
 
 def evaluate_prepared(model: FlowNetwork, prepared_root: str | os.PathLike, max_pairs: int | None = None,
