@@ -38,7 +38,7 @@ from f2depth.train.step import (
 )
 from f2depth.train.teacher import FlowTeacher, TeacherOutput
 
-#: The paper's weights (params.yaml loss_weights), for the tiny set's superpixels
+#: The CPU default's weights (params.yaml loss_weights), for the tiny set's superpixels
 STEP = StepConfig(train_fakes.WEIGHTS, min_area=10)
 
 HW = (48, 64)

@@ -21,8 +21,8 @@ from f2depth.params import load as load_params
 from f2depth.train.settings import loss_weights
 
 HW = (64, 64)
-#: The weight of every term of L_depth in the repository's params.yaml (``loss_weights``: the paper's), for a
-#: StepConfig in tests; read from there, so a new term with its weight needs no change here.
+#: The weight of every term of L_depth in the repository's params.yaml (``loss_weights``: the CPU default's),
+#: for a StepConfig in tests; read from there, so a new term with its weight needs no change here.
 WEIGHTS = loss_weights(load_params(Path(__file__).resolve().parents[1] / "params.yaml"))
 
 
