@@ -6,6 +6,8 @@ coordinates; ``cv2.resize`` maps a source coordinate x to ``(x + 0.5) * s - 0.5`
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import cv2
 import numpy as np
 
@@ -16,6 +18,25 @@ NYU_RGB_K = np.array([[5.1885790117450188e02, 0.0, 3.2558244941119034e02],
 NYU_RGB_DIST = np.array([2.0796615318809061e-01, -5.8613825163911781e-01, 7.2231363135888329e-04,
                          1.0479627195765181e-03, 4.9856986684705107e-01])
 NYU_SIZE_HW = (480, 640)
+
+
+@dataclass(frozen=True)
+class RawCamera:
+    """The camera of a raw frame folder: ``K`` (3,3), ``dist`` (5,) OpenCV k1 k2 p1 p2 k3, ``hw`` (height,
+    width) px of its frames, ``source`` where the intrinsics came from (printed and recorded)."""
+
+    K: np.ndarray
+    dist: np.ndarray
+    hw: tuple[int, int]
+    source: str
+
+    def to_json(self) -> dict:
+        return {"K": np.asarray(self.K).tolist(), "dist": np.asarray(self.dist).tolist(),
+                "height": self.hw[0], "width": self.hw[1], "intrinsics_source": self.source}
+
+
+#: NYU Depth V2's raw RGB frames.
+NYU_RAW_CAMERA = RawCamera(NYU_RGB_K, NYU_RGB_DIST, NYU_SIZE_HW, "NYU Depth V2 RGB calibration")
 
 
 def undistort_normalized(uv: np.ndarray, K: np.ndarray, dist: np.ndarray, iters: int = 50) -> np.ndarray:

@@ -186,6 +186,29 @@ def build_parser() -> argparse.ArgumentParser:
                    help="resizing of the disparity back to the input size (default bilinear)")
     p.set_defaults(func=_cmd_predict)
 
+    p = sub.add_parser("ingest", formatter_class=fmt,
+                       help="your videos / image folders → a raw frame folder to train on (docs/ingest.md)",
+                       description="Each video or image folder becomes one scene of OUT (NYU-raw layout, "
+                                   "camera.json, scenes.txt, ingest.json). Defaults: params.yaml's ingest "
+                                   "section; the flags override it.")
+    p.add_argument("inputs", type=Path, nargs="+", metavar="INPUT", help="videos and/or folders of images")
+    p.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder (replaced)")
+    cam = p.add_mutually_exclusive_group()
+    cam.add_argument("--camera", type=Path, metavar="FILE",
+                     help="intrinsics: our JSON/YAML, COLMAP cameras.txt or an OpenCV calibration YAML")
+    cam.add_argument("--fov", type=_positive_float, metavar="DEG", help="horizontal field of view, degrees")
+    p.add_argument("--params", type=Path, default=Path("params.yaml"), metavar="FILE",
+                   help="parameter file with the ingest section (default params.yaml)")
+    p.add_argument("--frame-step", type=_positive_int, metavar="N", help="every N-th frame is a candidate")
+    p.add_argument("--rate", type=_positive_float, metavar="HZ", help="videos: about HZ candidates a second")
+    p.add_argument("--min-motion", type=_finite, metavar="S",
+                   help="keep a frame when the median tracked motion is ≥ S × the diagonal")
+    p.add_argument("--min-sharpness", type=_finite, metavar="V", help="drop frames whose Laplacian variance "
+                   "is below V (0: off)")
+    p.add_argument("--max-side", type=_positive_int, metavar="PX", help="long side of the written frames")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=_cmd_ingest)
+
     p = sub.add_parser("export", formatter_class=fmt, help="export the depth network (ONNX)",
                        description=EXPORT_DESCRIPTION, epilog=EXIT_NOTE)
     p.add_argument("--model", type=Path, required=True, metavar="M", help="depth checkpoint (.pt)")
@@ -256,6 +279,26 @@ def _cmd_predict(args: argparse.Namespace) -> int:
          f"scale {summary['scale']:.4g}, {kind})")
     for text in summary["warnings"]:
         sys.stderr.write(f"f2depth {args.command}: warning: {' '.join(str(text).split())}\n")
+    return 0
+
+
+def _cmd_ingest(args: argparse.Namespace) -> int:
+    from f2depth import params as P
+    from f2depth.ingest.run import IngestConfig, ingest
+
+    params = P.load(args.params)
+    flags = {"frame_step": args.frame_step, "rate": args.rate, "min_motion": args.min_motion,
+             "min_sharpness": args.min_sharpness, "max_side": args.max_side}
+    params["ingest"] = {**P.get(params, "ingest"), **{k: v for k, v in flags.items() if v is not None}}
+    config = P.section(params, "ingest", IngestConfig)
+    summary = ingest(args.inputs, args.out, config, camera_file=args.camera, fov=args.fov,
+                     progress=not args.no_progress)
+    for scene, r in summary["scenes"].items():
+        _out(f"{scene}: kept {r['kept']} of {r['sampled']} sampled frames ({r['static']} static, "
+             f"{r['blur']} blurred dropped; {r['untracked']} kept untracked)")
+    cam = summary["camera"]
+    _out(f"wrote {len(summary['scenes'])} scene(s) to {args.out}: {cam['width']}×{cam['height']}, fx "
+         f"{cam['K'][0][0]:.1f} px ({summary['input_camera']['intrinsics_source']})")
     return 0
 
 

@@ -89,10 +89,11 @@ def pretrain_on_chairs(model, stage: PretrainStage, seed: int, train_frames: lis
     cfg = stage.chairs
     images = [read_image(path) for path in train_frames]
     pool = texture_pool(cfg.data, np.random.default_rng([seed, 7]), images)
+    generated = chairs_route.heldout_pairs(cfg, seed, pool)
     result = chairs_route.pretrain_chairs(
-        model, pool, cfg, seed, stage.network, stage.resume_dir, device,
+        model, pool, cfg, seed, stage.network, generated, stage.resume_dir, device,
         on_epoch=lambda epoch, st: run.log_metrics({f"train.{k}": v for k, v in st.items()}, epoch))
-    return result, chairs_route.heldout_pairs(cfg, seed, pool)
+    return result, generated
 
 
 def main(argv: list[str]) -> None:

@@ -36,7 +36,7 @@ def main(argv: list[str]) -> None:
     t0 = time.perf_counter()
     prepared = PreparedSet(P.get(p, "data.prepared"))
     scene_names = sorted({t.scene for t in prepared.tuples})
-    scenes = estimate_scenes(P.get(p, "data.nyu_raw"), scene_names, config)
+    scenes = estimate_scenes(P.get(p, "data.nyu_raw"), scene_names, config, prepared.source_camera)
     priors = tuple_priors(prepared, scenes, config)
     out = P.get(p, "data.poses")
     write_poses(out, scenes, priors, {t.tuple_id: t.scene for t in prepared.tuples}, config)

@@ -162,7 +162,8 @@ def test_missing_or_misaligned_gt(world):
     bad_K = NYU_RGB_K.copy()
     bad_K[0, 2] += 1.0
     np.savez(gt_files[3], depth=np.ones(NYU_SIZE_HW, np.float32), world_T_cam=np.eye(4), K=bad_K)
-    with pytest.raises(DataError, match=rf"{gt_files[3].name}: K differs from the NYU RGB calibration"):
+    with pytest.raises(DataError, match=rf"{gt_files[3].name}: K differs from the camera the frames are "
+                                        r"undistorted with \(NYU Depth V2 RGB calibration\)"):
         prepare(world["raw"], world["mat"], world["splits"], world["out"], _config(),
                 synth_gt=world["gt"], progress=False)
     gone = gt_files[6]

@@ -15,6 +15,7 @@ from f2depth.flow.bootstrap import (
     BootstrapConfig,
     data_dependent_init,
     flow_at,
+    heldout_pairs,
     matching_loss,
     multiscale_epe,
     pretrain_chairs,
@@ -112,14 +113,33 @@ def test_a_short_bootstrap_learns_flow_that_follows_the_images():
                       min_shapes=1, max_shapes=4, min_size=0.12, max_size=0.4, supersample=1, textures=24,
                       image_crops=0)
     cfg = BootstrapConfig(data=data, batch_size=8, steps_per_epoch=50, feature_epochs=3, feature_lr=2e-3,
-                          epochs=3, lr=3e-4, matching_weight=0.5, matching_strides=(4, 8),
+                          epochs=3, lr=3e-4, final_lr=3e-4, matching_weight=0.5, matching_strides=(4, 8),
                           w_scales=(0.32, 0.08, 0.02, 0.01, 0.005), calibration_pairs=4, heldout_pairs=16)
     pool = texture_pool(data, np.random.default_rng(0))
     model = PWCLite()
-    out = pretrain_chairs(model, pool, cfg, seed=0, network="pwclite", device="cpu", progress=False)
+    out = pretrain_chairs(model, pool, cfg, seed=0, network="pwclite", heldout=heldout_pairs(cfg, 0, pool),
+                          device="cpu", progress=False)
     start, after, final = out["start"], out["after_features"], out["final"]
     assert start["heldout_epe"] == pytest.approx(start["heldout_zero_epe"])  # zeroed heads: zero flow
     assert after["heldout_top1_s4"] > 0.2 and after["heldout_top1_s4"] > start["heldout_top1_s4"] + 0.05
     assert final["heldout_epe"] < 0.95 * final["heldout_zero_epe"]
     assert final["heldout_swap"] > 0.0
     assert [r["phase"] for r in out["history"]] == ["features"] * 3 + ["all"] * 3
+
+
+def test_phase_b_lr_falls_along_a_cosine_from_lr_to_final_lr():
+    data = ChairsSpec(height=64, width=64, max_shift=4, small_share=0.25, rotation_deg=0, scale=0.0,
+                      min_shapes=1, max_shapes=1, min_size=0.2, max_size=0.4, supersample=1, textures=2,
+                      image_crops=0)
+    kw = {"data": data, "batch_size": 2, "steps_per_epoch": 10, "feature_epochs": 1, "feature_lr": 1e-3,
+          "epochs": 3, "matching_weight": 0.5, "matching_strides": (4,), "w_scales": (1.0,),
+          "calibration_pairs": 2, "heldout_pairs": 2}
+    cfg = BootstrapConfig(lr=3e-4, final_lr=3e-5, **kw)
+    lrs = [cfg.phase_b_lr(i) for i in range(30)]
+    assert lrs[0] == pytest.approx(3e-4) and lrs[-1] == pytest.approx(3e-5)
+    assert lrs[14] == pytest.approx(3e-5 + 0.5 * 2.7e-4 * (1 + np.cos(np.pi * 14 / 29)))
+    assert all(a > b for a, b in zip(lrs, lrs[1:]))
+    assert cfg.phase_b_lr(100) == pytest.approx(3e-5)  # past the end: stays at final_lr
+    assert BootstrapConfig(lr=3e-4, final_lr=3e-4, **kw).phase_b_lr(7) == pytest.approx(3e-4)
+    with pytest.raises(ValueError, match="final_lr"):
+        BootstrapConfig(lr=3e-4, final_lr=1e-3, **kw)

@@ -143,7 +143,7 @@ def tiny_chairs() -> dict:
                      "scale": 0.05, "min_shapes": 1, "max_shapes": 2, "min_size": 0.2, "max_size": 0.4,
                      "supersample": 1, "textures": 3, "image_crops": 2},
             "batch_size": 2, "steps_per_epoch": 2, "feature_epochs": 1, "feature_lr": 2e-3, "epochs": 1,
-            "lr": 3e-4, "matching_weight": 0.5, "matching_strides": [4, 8],
+            "lr": 3e-4, "final_lr": 1e-4, "matching_weight": 0.5, "matching_strides": [4, 8],
             "w_scales": [0.32, 0.08, 0.02, 0.01, 0.005],
             "calibration_pairs": 2, "heldout_pairs": 3}
 

@@ -1,5 +1,7 @@
 """NYU Depth V2 raw video: ``<root>/<scene>/r-<timestamp>-<n>.ppm`` RGB frames (480×640, lens-distorted).
 
+The same layout holds a user's video after ``f2depth ingest`` (docs/ingest.md): ``.png`` frames and a
+``<root>/camera.json`` with their intrinsics (:func:`raw_camera`); without that file the frames are NYU's.
 Only the RGB frames are read. The dump's depth (``d-*.pgm``), accelerometer (``a-*.dump``) and
 ``INDEX.txt`` files are recognised and left alone; any other ``r-*`` file with a malformed name is an
 error, as is a scene folder without RGB frames.
@@ -7,6 +9,7 @@ error, as is a scene folder without RGB frames.
 
 from __future__ import annotations
 
+import json
 import os
 import re
 from dataclasses import dataclass
@@ -14,11 +17,12 @@ from pathlib import Path
 
 import numpy as np
 
-from f2depth.camera import NYU_SIZE_HW
+from f2depth.camera import NYU_RAW_CAMERA, NYU_SIZE_HW, RawCamera
 from f2depth.data.errors import DataError
 from f2depth.data.images import read_image
 
-RAW_RGB_RE = re.compile(r"^r-(\d+(?:\.\d+)?)-(\d+)\.ppm$")
+RAW_RGB_RE = re.compile(r"^r-(\d+(?:\.\d+)?)-(\d+)\.(?:ppm|png)$")
+CAMERA_FILE = "camera.json"  # of an ingested folder: RawCamera.to_json
 SCENE_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_\-]*$")
 
 
@@ -70,7 +74,7 @@ def list_frames(root: str | os.PathLike, scene: str) -> list[RawFrame]:
             continue  # d-*.pgm, a-*.dump, INDEX.txt: parts of the raw dump that training does not use
         m = RAW_RGB_RE.match(name)
         if m is None or not entry.is_file():
-            raise DataError(entry, "malformed RGB frame name (expected a file r-<timestamp>-<n>.ppm)",
+            raise DataError(entry, "malformed RGB frame name (expected a file r-<timestamp>-<n>.ppm or .png)",
                             "rename or remove it")
         found.append((float(m.group(1)), int(m.group(2)), entry))
     if not found:
@@ -83,6 +87,26 @@ def list_frames(root: str | os.PathLike, scene: str) -> list[RawFrame]:
     return [RawFrame(scene, i, p, t, c) for i, (t, c, p) in enumerate(found)]
 
 
-def read_frame(path: str | os.PathLike) -> np.ndarray:
-    """A raw RGB frame → RGB uint8 (480, 640, 3), still lens-distorted."""
-    return read_image(path, expect_hw=NYU_SIZE_HW)
+def read_frame(path: str | os.PathLike, hw: tuple[int, int] = NYU_SIZE_HW) -> np.ndarray:
+    """A raw RGB frame → RGB uint8 ``hw + (3,)`` (NYU's: (480, 640, 3), still lens-distorted)."""
+    return read_image(path, expect_hw=hw)
+
+
+def raw_camera(root: str | os.PathLike) -> RawCamera:
+    """The camera of the frames under ``root``: its ``camera.json`` (written by ``f2depth ingest``) or,
+    without one, NYU Depth V2's RGB calibration."""
+    path = _root(root) / CAMERA_FILE
+    if not path.is_file():
+        return NYU_RAW_CAMERA
+    fix = "re-run `f2depth ingest` (docs/ingest.md) or remove the file for NYU raw data"
+    try:
+        cam = json.loads(path.read_text())
+        K = np.asarray(cam["K"], dtype=np.float64)
+        dist = np.asarray(cam.get("dist", [0.0] * 5), dtype=np.float64)
+        hw = (int(cam["height"]), int(cam["width"]))
+    except (json.JSONDecodeError, KeyError, TypeError, ValueError) as exc:
+        raise DataError(path, f"unreadable camera file ({type(exc).__name__}: {exc})", fix) from None
+    if K.shape != (3, 3) or dist.shape != (5,) or not np.all(np.isfinite(K)) or min(hw) < 1:
+        raise DataError(path, "K must be a finite 3×3 matrix, dist 5 OpenCV coefficients, height and width "
+                        "positive", fix)
+    return RawCamera(K, dist, hw, str(cam.get("intrinsics_source", path)))

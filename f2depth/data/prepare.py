@@ -1,7 +1,8 @@
 """The ``prepare`` stage: NYU raw video → the prepared training set (``docs/formats.md``).
 
 Per training scene: raw RGB frames sorted by timestamp → every ``frame_step``-th → undistorted with the
-NYU RGB calibration (``cv2.undistort``, same K) → ``crop`` px cut from every side → resized to the
+raw folder's camera (:func:`f2depth.data.nyu_raw.raw_camera`: NYU's RGB calibration, or an ingested
+video's ``camera.json``; ``cv2.undistort``, same K) → ``crop`` px cut from every side → resized to the
 training size (``interpolation``: ``lanczos`` = PIL's LANCZOS as P²Net, or ``area`` = INTER_AREA when
 shrinking; see ``f2depth.data.images.INTERPOLATIONS``). Frame tuples (target, prev, next) and pairs (t, t+1)
 are consecutive *sampled* frames of one scene. Felzenszwalb superpixels of every tuple target are
@@ -30,11 +31,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from f2depth.camera import NYU_RGB_DIST, NYU_RGB_K, NYU_SIZE_HW, crop_resize_intrinsics, undistort_image
+from f2depth.camera import NYU_RAW_CAMERA, RawCamera, crop_resize_intrinsics, undistort_image
 from f2depth.data.errors import DataError
 from f2depth.data.images import INTERPOLATIONS, resize_rgb
 from f2depth.data.nyu_labeled import scenes_of_test_images
-from f2depth.data.nyu_raw import RawFrame, list_frames, list_scenes, read_frame
+from f2depth.data.nyu_raw import RawFrame, list_frames, list_scenes, raw_camera, read_frame
 from f2depth.data.prepared import FRAMES_HEADER, PAIRS_HEADER, TUPLES_HEADER
 from f2depth.io import atomic_dir, csv_text, imwrite, save_npz, write_json, write_rgb, write_text
 from f2depth.superpixels import MIN_AREA, scaled_min_area
@@ -111,17 +112,20 @@ def crop_and_resize(image: np.ndarray, crop: int, hw: tuple[int, int], nearest: 
     return resize_image(crop_border(image, crop), hw, nearest)
 
 
-def undistort_crop(raw_rgb: np.ndarray, crop: int) -> np.ndarray:
-    """Distorted NYU raw frame (480, 640, 3) → undistorted RGB uint8 with ``crop`` px cut from every side,
-    at full resolution ((448, 608, 3) for crop 16): the image P²Net selects its keypoints on (its
-    ``datasets/nyu_dataset.py``)."""
-    return crop_border(undistort_image(raw_rgb, NYU_RGB_K, NYU_RGB_DIST), crop)
+def undistort_crop(raw_rgb: np.ndarray, crop: int, camera: RawCamera = NYU_RAW_CAMERA) -> np.ndarray:
+    """Distorted raw frame (``camera.hw``, 3) → undistorted RGB uint8 with ``crop`` px cut from every side,
+    at full resolution (NYU: (448, 608, 3) for crop 16): the image P²Net selects its keypoints on (its
+    ``datasets/nyu_dataset.py``). A camera without distortion (an ingested video) is only cropped."""
+    if raw_rgb.shape[:2] != tuple(camera.hw):
+        raise ValueError(f"a {raw_rgb.shape[:2]} frame for a camera of {camera.hw}")
+    undistorted = undistort_image(raw_rgb, camera.K, camera.dist) if np.any(camera.dist) else raw_rgb
+    return crop_border(undistorted, crop)
 
 
-def prepare_image(raw_rgb: np.ndarray, crop: int, hw: tuple[int, int], interpolation: str = "area"
-                  ) -> np.ndarray:
-    """Distorted NYU raw frame (480, 640, 3) → undistorted, cropped, resized RGB uint8 (H, W, 3)."""
-    return resize_image(undistort_crop(raw_rgb, crop), hw, interpolation=interpolation)
+def prepare_image(raw_rgb: np.ndarray, crop: int, hw: tuple[int, int], interpolation: str = "area",
+                  camera: RawCamera = NYU_RAW_CAMERA) -> np.ndarray:
+    """Distorted raw frame (``camera.hw``, 3) → undistorted, cropped, resized RGB uint8 (H, W, 3)."""
+    return resize_image(undistort_crop(raw_rgb, crop, camera), hw, interpolation=interpolation)
 
 
 def superpixels(rgb: np.ndarray, params: SuperpixelParams) -> np.ndarray:
@@ -142,8 +146,10 @@ def superpixel_stats(labels: np.ndarray, min_area: float = MIN_AREA) -> tuple[in
     return int(counts.size), float(counts[counts > min_area].sum() / labels.size)
 
 
-def read_synth_gt(path: Path, expect_hw: tuple[int, int] = NYU_SIZE_HW) -> tuple[np.ndarray, np.ndarray]:
-    """Side-car ground truth of a raw frame → (depth float32 (H, W) m, world_T_cam (4, 4)), validated."""
+def read_synth_gt(path: Path, camera: RawCamera = NYU_RAW_CAMERA) -> tuple[np.ndarray, np.ndarray]:
+    """Side-car ground truth of a raw frame → (depth float32 ``camera.hw`` m, world_T_cam (4, 4)), validated
+    (its K must be the camera's)."""
+    expect_hw = camera.hw
     try:
         with np.load(path) as z:
             arrays = {k: z[k] for k in ("depth", "world_T_cam", "K") if k in z.files}
@@ -157,8 +163,8 @@ def read_synth_gt(path: Path, expect_hw: tuple[int, int] = NYU_SIZE_HW) -> tuple
         raise DataError(path, f"depth must be finite, ≥ 0 and {expect_hw}, found {depth.shape}")
     if T.shape != (4, 4) or not np.all(np.isfinite(T)):
         raise DataError(path, f"world_T_cam must be a finite 4×4 matrix, found {T.shape}")
-    if K.shape != (3, 3) or not np.allclose(K, NYU_RGB_K, rtol=1e-6, atol=1e-6):
-        raise DataError(path, "K differs from the NYU RGB calibration the frames are undistorted with",
+    if K.shape != (3, 3) or not np.allclose(K, camera.K, rtol=1e-6, atol=1e-6):
+        raise DataError(path, f"K differs from the camera the frames are undistorted with ({camera.source})",
                         "the side-car depth would not align with the undistorted image")
     return depth.astype(np.float32), T.astype(np.float64)
 
@@ -231,14 +237,16 @@ class _Job:
     task: FrameTask
     out: Path
     config: PrepareConfig
+    camera: RawCamera
 
 
 def _run_job(job: _Job) -> tuple[str, int, float, float] | None:
     t, cfg, out = job.task, job.config, job.out
-    img = prepare_image(read_frame(t.raw.path), cfg.crop, cfg.hw, cfg.interpolation)
+    raw = read_frame(t.raw.path, job.camera.hw)
+    img = prepare_image(raw, cfg.crop, cfg.hw, cfg.interpolation, job.camera)
     write_rgb(out / image_rel(t), img)
     if t.gt_src is not None:
-        depth, pose = read_synth_gt(t.gt_src)
+        depth, pose = read_synth_gt(t.gt_src, job.camera)
         depth = crop_and_resize(depth, cfg.crop, cfg.hw, nearest=True)
         save_npz(out / gt_rel(t), depth=depth.astype(np.float32), world_T_cam=pose)
     if not t.target:
@@ -264,7 +272,8 @@ def segments_rel(tuple_id: str) -> str:
 
 # ---- the stage --------------------------------------------------------------------------------------
 
-def _write_tables(out: Path, per_scene: dict[str, list[FrameTask]], config: PrepareConfig) -> tuple[int, int]:
+def _write_tables(out: Path, per_scene: dict[str, list[FrameTask]], config: PrepareConfig,
+                  camera: RawCamera) -> tuple[int, int]:
     frames, tuples, pairs = [], [], []
     for scene, tasks in per_scene.items():
         for k, t in enumerate(tasks):
@@ -277,12 +286,12 @@ def _write_tables(out: Path, per_scene: dict[str, list[FrameTask]], config: Prep
     write_text(out / "frames.csv", csv_text(FRAMES_HEADER, frames))
     write_text(out / "tuples.csv", csv_text(TUPLES_HEADER, tuples))
     write_text(out / "pairs.csv", csv_text(PAIRS_HEADER, pairs))
-    K = crop_resize_intrinsics(NYU_RGB_K, NYU_SIZE_HW, config.crop, config.hw, config.p2net_cxcy_bug)
+    K = crop_resize_intrinsics(camera.K, camera.hw, config.crop, config.hw, config.p2net_cxcy_bug)
     write_json(out / "camera.json", {
         "K": K, "height": config.height, "width": config.width, "p2net_cxcy_bug": config.p2net_cxcy_bug,
-        "source_K": NYU_RGB_K, "source_dist": NYU_RGB_DIST, "source_height": NYU_SIZE_HW[0],
-        "source_width": NYU_SIZE_HW[1], "crop": config.crop, "frame_step": config.frame_step,
-        "interpolation": config.interpolation,
+        "source_K": camera.K, "source_dist": camera.dist, "source_height": camera.hw[0],
+        "source_width": camera.hw[1], "intrinsics_source": camera.source, "crop": config.crop,
+        "frame_step": config.frame_step, "interpolation": config.interpolation,
     })
     return len(tuples), len(pairs)
 
@@ -294,6 +303,7 @@ def prepare(nyu_raw: str | os.PathLike, nyu_labeled: str | os.PathLike, nyu_spli
     start = time.perf_counter()
     raw_root, out = Path(nyu_raw), Path(out_dir)
     raw_scenes = list_scenes(raw_root)
+    camera = raw_camera(raw_root)
     if train_scenes_file is not None:
         scenes = read_scene_list(train_scenes_file, raw_scenes)
     else:
@@ -309,9 +319,9 @@ def prepare(nyu_raw: str | os.PathLike, nyu_labeled: str | os.PathLike, nyu_spli
                       f"{', '.join(short[:5])}", stacklevel=2)
 
     with atomic_dir(out) as tmp:
-        jobs = [_Job(t, tmp, config) for tasks in per_scene.values() for t in tasks]
+        jobs = [_Job(t, tmp, config, camera) for tasks in per_scene.values() for t in tasks]
         results = [r for r in map_jobs(_run_job, jobs, config.workers, "prepare", progress) if r is not None]
-        n_tuples, n_pairs = _write_tables(tmp, per_scene, config)
+        n_tuples, n_pairs = _write_tables(tmp, per_scene, config, camera)
     stats = np.array([r[1:] for r in results], dtype=np.float64).reshape(-1, 3)
     mean = stats.mean(axis=0) if len(stats) else np.zeros(3)
     return {"raw_scenes": len(raw_scenes), "scenes": len(scenes), "scenes_without_tuples": len(short),

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from f2depth.camera import NYU_RAW_CAMERA, RawCamera
 from f2depth.data.errors import DataError
 from f2depth.data.images import read_image, read_png16
 
@@ -148,6 +149,21 @@ class PreparedSet:
         """The filter prepare shrank the images with (camera.json ``interpolation``; sets made before the
         key existed used ``area``)."""
         return str(self.camera.get("interpolation", "area"))
+
+    @property
+    def source_camera(self) -> RawCamera:
+        """The camera of the raw frames the set was made from (camera.json ``source_*``; sets made before
+        these keys were recorded are NYU's)."""
+        cam = self.camera
+        if "source_K" not in cam:
+            return NYU_RAW_CAMERA
+        try:
+            return RawCamera(np.asarray(cam["source_K"], dtype=np.float64).reshape(3, 3),
+                             np.asarray(cam["source_dist"], dtype=np.float64).reshape(5),
+                             (int(cam["source_height"]), int(cam["source_width"])),
+                             str(cam.get("intrinsics_source", "NYU Depth V2 RGB calibration")))
+        except (KeyError, TypeError, ValueError) as exc:
+            raise DataError(self.root / "camera.json", f"bad source camera ({exc})", _FIX) from None
 
     def raw_path(self, frame_id: str, nyu_raw: str | os.PathLike) -> Path:
         """The NYU raw frame a prepared frame was made from: ``nyu_raw / raw_file`` (not checked)."""

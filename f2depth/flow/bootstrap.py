@@ -13,7 +13,8 @@ on one image-independent field. The recipe:
    (:func:`matching_loss`: the softmax over the 81 displacements of √C·corr at strides 4 and 8 pushed
    towards the true displacement), lr ``feature_lr``;
 3. **phase B** (``epochs``): the whole network, multi-scale EPE (:func:`multiscale_epe`) +
-   ``matching_weight`` × the matching loss, lr ``lr``.
+   ``matching_weight`` × the matching loss, lr falling along a cosine from ``lr`` to ``final_lr``
+   (:meth:`BootstrapConfig.phase_b_lr`).
 
 Every epoch is ``steps_per_epoch`` new batches drawn from a generator seeded by (seed, epoch), so a
 resumed run (``<resume_dir>/last.pt``, :mod:`f2depth.epochs`) sees exactly the batches of an unbroken one.
@@ -61,6 +62,7 @@ class BootstrapConfig:
     feature_lr: float = field(metadata={"gt": 0})
     epochs: int = field(metadata={"min": 1})            # phase B: the whole network
     lr: float = field(metadata={"gt": 0})
+    final_lr: float = field(metadata={"gt": 0})          # phase B's lr falls from lr to this (cosine)
     matching_weight: float = field(metadata={"min": 0})  # of the matching loss in phase B
     matching_strides: tuple[int, ...]                    # pyramid strides the matching loss reads
     w_scales: tuple[float, ...]                          # multi-scale EPE weight per level, finest first
@@ -71,12 +73,19 @@ class BootstrapConfig:
     def __post_init__(self) -> None:
         if not self.w_scales or any(w < 0 for w in self.w_scales):
             raise ValueError(f"w_scales = {list(self.w_scales)} must be non-negative weights, finest first")
+        if self.final_lr > self.lr:
+            raise ValueError(f"final_lr = {self.final_lr} is above lr = {self.lr}; phase B's lr only falls")
         if any(s < 1 for s in self.matching_strides):
             raise ValueError(f"matching_strides = {list(self.matching_strides)} must be pyramid strides >= 1")
 
     @property
     def total_epochs(self) -> int:
         return self.feature_epochs + self.epochs
+
+    def phase_b_lr(self, step: int) -> float:
+        """Phase B's lr at its ``step`` (0-based): a cosine from ``lr`` to ``final_lr`` over its steps."""
+        progress = min(step / max(self.epochs * self.steps_per_epoch - 1, 1), 1.0)
+        return self.final_lr + 0.5 * (self.lr - self.final_lr) * (1.0 + math.cos(math.pi * progress))
 
 
 # ---- the start ------------------------------------------------------------------------------------------
@@ -271,39 +280,43 @@ def heldout_scores(model: FlowNetwork, pairs: Sequence[torch.Tensor], cfg: Boots
             **{f"heldout_{k}": float(np.nanmean(v)) for k, v in tops.items()}}
 
 
-def _calibration_batch(cfg: BootstrapConfig, seed: int, pool: torch.Tensor, device: str
-                       ) -> tuple[torch.Tensor, torch.Tensor]:
+def calibration_batch(cfg: BootstrapConfig, seed: int, pool: torch.Tensor, device: str
+                      ) -> tuple[torch.Tensor, torch.Tensor]:
+    """The data-dependent init's batch of ``cfg.calibration_pairs`` generated pairs (a seed stream of its
+    own): ``img1, img2`` on ``device``."""
     a, b, _, _ = render_pairs(cfg.data, pool, np.random.default_rng([seed, 2_000_003]), cfg.calibration_pairs)
     return a.to(device), b.to(device)
 
 
-def recalibrate_decoder(model: FlowNetwork, cfg: BootstrapConfig, seed: int, pool: torch.Tensor, device: str
+def recalibrate_decoder(model: FlowNetwork, calibration: tuple[torch.Tensor, torch.Tensor]
                         ) -> dict[str, float]:
     """The data-dependent init again, of every convolution outside ``model.feature_module()`` (and the flow
-    heads): phase A changes the features' statistics, which the decoder was calibrated on."""
+    heads), on the ``calibration`` pair batch: phase A changes the features' statistics, which the decoder
+    was calibrated on."""
     features = {id(m) for m in model.feature_module().modules()}
     skip = [m for m in model.modules() if id(m) in features] + list(model.flow_heads())
-    a, b = _calibration_batch(cfg, seed, pool, device)
-    return data_dependent_init(model, a, b, skip=skip)
+    return data_dependent_init(model, *calibration, skip=skip)
 
 
-def bootstrap_start(model: FlowNetwork, cfg: BootstrapConfig, seed: int, pool: torch.Tensor, device: str
+def bootstrap_start(model: FlowNetwork, calibration: tuple[torch.Tensor, torch.Tensor], seed: int
                     ) -> dict[str, float]:
-    """MSRA, zeroed flow heads and the data-dependent init on a calibration batch (its own seed stream)
-    → the init's report (:func:`data_dependent_init`)."""
+    """MSRA (seeded by ``seed``), zeroed flow heads and the data-dependent init on the ``calibration`` pair
+    batch (:func:`calibration_batch`) → the init's report (:func:`data_dependent_init`)."""
     msra_init(model, torch.Generator().manual_seed(seed))
     zero_flow_heads(model)  # first, so the calibration sees the zero flow that training starts from
-    a, b = _calibration_batch(cfg, seed, pool, device)
-    return data_dependent_init(model, a, b, skip=model.flow_heads())
+    model.to(calibration[0].device)
+    return data_dependent_init(model, *calibration, skip=model.flow_heads())
 
 
 def pretrain_chairs(model: FlowNetwork, pool: torch.Tensor, cfg: BootstrapConfig, seed: int, network: str,
-                    resume_dir: str | os.PathLike | None = None, device: str = "cpu",
+                    heldout: Sequence[torch.Tensor], resume_dir: str | os.PathLike | None = None,
+                    device: str = "cpu",
                     on_epoch: Callable[[int, dict[str, float]], None] | None = None,
                     progress: bool = True) -> dict[str, Any]:
     """Train ``model`` in place (module docstring) → ``{"epochs_run", "resumed_from", "seconds", "history",
-    "start", "after_features", "final"}`` (the last three: :func:`heldout_scores` after the init, after
-    phase A and at the end). ``on_epoch(epoch, row)`` as in :func:`f2depth.flow.pretrain.pretrain`."""
+    "start", "after_features", "final"}`` (the last three: :func:`heldout_scores` on the generated
+    ``heldout`` pairs, :func:`heldout_pairs`, after the init, after phase A and at the end).
+    ``on_epoch(epoch, row)`` as in :func:`f2depth.flow.pretrain.pretrain`."""
     model.to(device).train()
     opt_a = make_optimizer(model.feature_module(), _Lr(cfg.feature_lr, cfg.weight_decay))
     opt_b = make_optimizer(model, _Lr(cfg.lr, cfg.weight_decay))
@@ -311,17 +324,18 @@ def pretrain_chairs(model: FlowNetwork, pool: torch.Tensor, cfg: BootstrapConfig
                                                          "optimizer": opt_b},
                      Path(resume_dir) / "last.pt" if resume_dir is not None else None,
                      run_fingerprint(cfg, seed, pool, network), progress=progress)
-    test = heldout_pairs(cfg, seed, pool)
+    test = tuple(heldout)
+    calibration = calibration_batch(cfg, seed, pool, device)
     scores: dict[str, Any] = {}
     if not loop.restore():
-        bootstrap_start(model, cfg, seed, pool, device)
-        model.to(device)
+        bootstrap_start(model, calibration, seed)
         scores["start"] = heldout_scores(model, test, cfg, device)
-    phase = "features"
+    phase, b_step = "features", 0
 
     def batches(epoch: int) -> _Batches:
-        nonlocal phase
+        nonlocal phase, b_step
         phase = "features" if epoch <= cfg.feature_epochs else "all"
+        b_step = max(epoch - cfg.feature_epochs - 1, 0) * cfg.steps_per_epoch  # also right after a resume
         return _Batches(cfg, pool, np.random.default_rng([seed, epoch]))
 
     def step(batch: tuple[torch.Tensor, ...]) -> dict[str, float]:
@@ -331,6 +345,10 @@ def pretrain_chairs(model: FlowNetwork, pool: torch.Tensor, cfg: BootstrapConfig
         if phase == "features":
             loss, optim = match, opt_a
         else:
+            nonlocal b_step
+            for group in opt_b.param_groups:
+                group["lr"] = cfg.phase_b_lr(b_step)
+            b_step += 1
             flows, _ = model(img1, img2, with_backward=False)
             epe, levels = multiscale_epe(flows, gt, cfg.w_scales)
             loss, optim = epe + cfg.matching_weight * match, opt_b
@@ -345,7 +363,7 @@ def pretrain_chairs(model: FlowNetwork, pool: torch.Tensor, cfg: BootstrapConfig
         out = {"phase": phase,
                **heldout_scores(model, tuple(t[:EPOCH_TEST_PAIRS] for t in test), cfg, device)}
         if row["epoch"] == cfg.feature_epochs:
-            recalibrate_decoder(model, cfg, seed, pool, device)
+            recalibrate_decoder(model, calibration)
             scores["after_features"] = heldout_scores(model, test, cfg, device)
         return out
 

@@ -28,7 +28,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from f2depth.camera import NYU_SIZE_HW
+from f2depth.camera import NYU_RAW_CAMERA, RawCamera
 from f2depth.data.errors import DataError
 from f2depth.data.images import read_image
 from f2depth.data.nyu_raw import read_frame
@@ -42,7 +42,6 @@ from f2depth.keypoints.store import save_keypoints
 from f2depth.workers import map_jobs
 
 CHUNK = 8  # frames per task without ``sequence``
-NYU_H, NYU_W = NYU_SIZE_HW
 SOURCES = ("full_resolution", "prepared")
 #: Largest mean |Δ| (grey levels) between a prepared image and its raw frame prepared again; more means
 #: the raw file is not the one prepare read (OpenCV versions differ by far less than one level).
@@ -51,8 +50,10 @@ _RAW_FIX = ("data.nyu_raw must be the NYU raw folder data.prepared was made from
             "`dvc repro prepare`")
 
 
-def full_resolution_gray(raw_path: str | os.PathLike, crop: int) -> tuple[np.ndarray, np.ndarray]:
-    """A raw NYU frame → (grey uint8 (480−2·crop, 640−2·crop) of the undistorted crop, its RGB).
+def full_resolution_gray(raw_path: str | os.PathLike, crop: int, camera: RawCamera = NYU_RAW_CAMERA
+                         ) -> tuple[np.ndarray, np.ndarray]:
+    """A raw frame of ``camera`` → (grey uint8 (H−2·crop, W−2·crop) of the undistorted crop, its RGB; NYU:
+    (448, 608) for crop 16).
 
     The grey conversion is P²Net's ``cv2.cvtColor(RGB2GRAY)`` on the full-resolution crop (P²Net's
     ``datasets/nyu_dataset.py``).
@@ -61,7 +62,7 @@ def full_resolution_gray(raw_path: str | os.PathLike, crop: int) -> tuple[np.nda
     if not path.is_file():
         raise DataError(path, "raw frame not found (frames.csv raw_file under data.nyu_raw)",
                         f"{_RAW_FIX}, or set keypoints.source: prepared")
-    rgb = undistort_crop(read_frame(path), crop)
+    rgb = undistort_crop(read_frame(path, camera.hw), crop, camera)
     return cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY), rgb
 
 
@@ -83,6 +84,7 @@ class _Task:
     carry: bool
     source: str
     interpolation: str = "area"  # prepare's filter (camera.json), for the raw-vs-prepared check
+    camera: RawCamera = NYU_RAW_CAMERA  # of the raw frames (camera.json source_*)
 
 
 def _select_task(task: _Task) -> list[tuple[np.ndarray, float | None]]:
@@ -93,7 +95,7 @@ def _select_task(task: _Task) -> list[tuple[np.ndarray, float | None]]:
         prepared = read_image(image, task.hw)
         mismatch = None
         if task.source == "full_resolution":
-            gray, full = full_resolution_gray(raw, task.crop)
+            gray, full = full_resolution_gray(raw, task.crop, task.camera)
             mismatch = raw_mismatch(full, prepared, task.interpolation)
             if mismatch > MATCH_TOLERANCE:
                 raise DataError(raw, f"prepared again it differs from {image} by {mismatch:.1f} grey levels "
@@ -154,7 +156,7 @@ def extract_keypoints(prepared: str | os.PathLike, out_file: str | os.PathLike,
     else:
         index_groups = [list(range(i, min(i + CHUNK, len(frames)))) for i in range(0, len(frames), CHUNK)]
     tasks = [_Task([paths[i] for i in g], [raws[i] for i in g], data.hw, crop, preset, options, sequence,
-                   source, data.interpolation) for g in index_groups]
+                   source, data.interpolation, data.source_camera) for g in index_groups]
     points = [np.zeros((0, 3), np.int16)] * len(frames)
     mismatch: list[float | None] = [None] * len(frames)
     results = map_jobs(_select_task, tasks, workers, f"keypoints ({preset})", progress,
@@ -178,7 +180,8 @@ def extract_keypoints(prepared: str | os.PathLike, out_file: str | os.PathLike,
     checked = [m for m in mismatch if m is not None]
     return {"preset": preset, "options": {k: v for k, v in vars(config).items() if k != "name"},
             "source": source,
-            "selector_input": [NYU_H - 2 * crop, NYU_W - 2 * crop] if full else list(data.hw),
+            "selector_input": ([data.source_camera.hw[0] - 2 * crop, data.source_camera.hw[1] - 2 * crop]
+                               if full else list(data.hw)),
             "sequence": bool(sequence), "frames": len(frames), "size": list(data.hw),
             **_summary(counts, points),
             "raw_vs_prepared_max_diff": round(max(checked), 4) if checked else None, "overlays": len(written),

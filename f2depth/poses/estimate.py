@@ -2,7 +2,8 @@
 
 Per training scene of the prepared set: all its NYU raw frames (not only every ``frame_step``-th: the
 frames in between make the tracks long and the geometry stiff), undistorted at full resolution with the
-NYU RGB calibration (``cv2.undistort``, same K, as ``prepare``) → corner tracks (``tracks``) → incremental
+prepared set's source camera (NYU's RGB calibration or an ingested video's; ``cv2.undistort``, same K, as
+``prepare``) → corner tracks (``tracks``) → incremental
 structure from motion with the intrinsics held fixed (``reconstruct``) → one scale per scene: the median
 depth of the scene's images as its triangulated points sample them (``Reconstruction.image_median_depth``:
 each point weighted by the image area it is the nearest point to) is set to ``median_depth``, the depth
@@ -27,7 +28,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from f2depth.camera import NYU_RGB_DIST, NYU_RGB_K, NYU_SIZE_HW, undistort_image
+from f2depth.camera import NYU_RAW_CAMERA, RawCamera, undistort_image
 from f2depth.data.errors import DataError
 from f2depth.data.nyu_raw import list_frames, read_frame
 from f2depth.data.prepared import PreparedSet
@@ -86,19 +87,20 @@ class ScenePoses:
         return np.linalg.inv(self.world_T_cam[source]) @ self.world_T_cam[target]
 
 
-def load_grey_frames(paths: list[Path]) -> list[np.ndarray]:
-    """NYU raw frames → undistorted (NYU RGB calibration, same K) uint8 grey images (480, 640)."""
-    return [cv2.cvtColor(undistort_image(read_frame(p), NYU_RGB_K, NYU_RGB_DIST), cv2.COLOR_RGB2GRAY)
+def load_grey_frames(paths: list[Path], camera: RawCamera = NYU_RAW_CAMERA) -> list[np.ndarray]:
+    """Raw frames of ``camera`` → undistorted (same K) uint8 grey images ``camera.hw`` (NYU: 480×640)."""
+    return [cv2.cvtColor(undistort_image(read_frame(p, camera.hw), camera.K, camera.dist), cv2.COLOR_RGB2GRAY)
             for p in paths]
 
 
-def estimate_scene(nyu_raw: str | Path, scene: str, config: PosesConfig) -> ScenePoses:
-    """Poses of every raw frame of ``scene`` (module docstring)."""
+def estimate_scene(nyu_raw: str | Path, scene: str, config: PosesConfig,
+                   camera: RawCamera = NYU_RAW_CAMERA) -> ScenePoses:
+    """Poses of every raw frame of ``scene`` taken by ``camera`` (module docstring)."""
     t0 = time.perf_counter()
     frames = list_frames(nyu_raw, scene)
-    grays = load_grey_frames([f.path for f in frames])
-    tracks = track_corners(grays, valid_region(NYU_RGB_K, NYU_RGB_DIST, NYU_SIZE_HW), config.tracker)
-    rec = reconstruct(tracks, NYU_RGB_K, config.reconstruct).normalised(config.median_depth, NYU_SIZE_HW)
+    grays = load_grey_frames([f.path for f in frames], camera)
+    tracks = track_corners(grays, valid_region(camera.K, camera.dist, camera.hw), config.tracker)
+    rec = reconstruct(tracks, camera.K, config.reconstruct).normalised(config.median_depth, camera.hw)
     world_T_cam = np.full_like(rec.cam_T_world, np.nan)
     world_T_cam[rec.registered] = np.linalg.inv(rec.cam_T_world[rec.registered])
     return ScenePoses(scene=scene, raw_files=[f"{scene}/{f.path.name}" for f in frames],
@@ -136,11 +138,13 @@ def tuple_priors(prepared: PreparedSet, scenes: dict[str, ScenePoses],
     return out
 
 
-def estimate_scenes(nyu_raw: str | Path, scenes: list[str], config: PosesConfig) -> dict[str, ScenePoses]:
+def estimate_scenes(nyu_raw: str | Path, scenes: list[str], config: PosesConfig,
+                    camera: RawCamera = NYU_RAW_CAMERA) -> dict[str, ScenePoses]:
     """``estimate_scene`` for every scene, in ``config.workers`` processes (≤ 1: in this one)."""
     for scene in scenes:
         if not (Path(nyu_raw) / scene).is_dir():
             raise DataError(Path(nyu_raw) / scene, "raw scene of the prepared set not found",
                             "point data.nyu_raw at the raw frames the prepared set was made from")
-    poses = map_jobs(functools.partial(estimate_scene, str(nyu_raw), config=config), scenes, config.workers)
+    job = functools.partial(estimate_scene, str(nyu_raw), config=config, camera=camera)
+    poses = map_jobs(job, scenes, config.workers)
     return dict(zip(scenes, poses))

@@ -1,0 +1,187 @@
+"""``f2depth ingest``: videos and image folders → a raw frame folder in the NYU-raw layout (docs/ingest.md).
+
+Every input is one scene: a video (any frame rate; OpenCV applies its rotation metadata) or a folder of
+images (sorted by name). Frames are streamed, never held together: sampled every ``frame_step``-th (a
+video with ``rate``: every round(fps / rate)-th), filtered (:class:`f2depth.ingest.select.FrameFilter`:
+static camera, optional blur), undistorted with the camera (:mod:`f2depth.ingest.camera_files`: camera
+file → ``fov`` → EXIF), shrunk to at most ``max_side`` px on the long side and written as
+``<out>/<scene>/r-<seconds>-<index>.png``. ``<out>/camera.json`` holds the intrinsics of those frames
+(no distortion left; :func:`f2depth.data.nyu_raw.raw_camera` reads it), ``<out>/scenes.txt`` the scenes
+(``prepare.train_scenes_file``), ``<out>/ingest.json`` what was kept and dropped per scene. The folder is
+built aside and swapped in at the end: a failed ingest leaves nothing that looks valid.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+import time
+from collections.abc import Iterator, Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+from tqdm import tqdm
+
+from f2depth.camera import RawCamera, crop_resize_intrinsics, undistort_image
+from f2depth.data.errors import DataError
+from f2depth.data.nyu_raw import CAMERA_FILE
+from f2depth.inference.sources import (
+    IMAGE_EXTENSIONS,
+    VIDEO_EXTENSIONS,
+    Frame,
+    captured_stderr_fd,
+    open_source,
+)
+from f2depth.ingest.camera_files import choose_camera
+from f2depth.ingest.select import FrameFilter
+from f2depth.io import atomic_dir, write_json, write_rgb, write_text
+
+MIN_KEPT = 3  # a scene gives a frame tuple (target, prev, next) from three kept frames
+
+
+@dataclass(frozen=True)
+class IngestConfig:
+    """The ``ingest`` section of params.yaml (``f2depth ingest`` flags override it)."""
+
+    frame_step: int = field(metadata={"min": 1})        # every N-th frame is a candidate ...
+    rate: float | None = field(metadata={"gt": 0})      # ... or, for a video, about this many per second
+    min_motion: float = field(metadata={"min": 0})      # median tracked motion ÷ diagonal to keep a frame
+    min_sharpness: float = field(metadata={"min": 0})   # Laplacian variance at 320 px; 0 = no blur filter
+    max_side: int = field(metadata={"min": 32})         # px, long side of the written frames
+
+
+@dataclass(frozen=True)
+class _Input:
+    path: Path
+    scene: str
+
+
+def video_info(path: Path) -> tuple[float, float, bool]:
+    """(frames per second or 0 when the container gives none, rotation metadata in degrees, whether OpenCV
+    applies that rotation to the decoded frames) of a video."""
+    with captured_stderr_fd():
+        cap = cv2.VideoCapture(str(path))
+        try:
+            fps = float(cap.get(cv2.CAP_PROP_FPS) or 0.0)
+            rotation = float(cap.get(cv2.CAP_PROP_ORIENTATION_META) or 0.0)
+            applied = bool(cap.get(cv2.CAP_PROP_ORIENTATION_AUTO))
+        finally:
+            cap.release()
+    return (fps if math.isfinite(fps) and fps > 0 else 0.0), rotation, applied
+
+
+def scene_name(path: Path, taken: set[str]) -> str:
+    """A scene folder name from an input's stem: letters, digits, '_' and '-' only, unique."""
+    base = re.sub(r"[^A-Za-z0-9_\-]+", "_", path.stem if path.is_file() else path.name).strip("_-") or "scene"
+    name, k = base, 2
+    while name in taken:
+        name, k = f"{base}_{k}", k + 1
+    taken.add(name)
+    return name
+
+
+def collect_inputs(paths: Sequence[str | os.PathLike]) -> list[_Input]:
+    """The scenes of the given paths: each video, each image folder; a folder of videos only gives one
+    scene per video. A folder that mixes images and videos, or holds neither → DataError."""
+    found: list[Path] = []
+    for raw in paths:
+        p = Path(raw)
+        if not p.exists():
+            raise DataError(p, "input not found", "give videos or folders of images")
+        if p.is_dir():
+            entries = [e for e in sorted(p.iterdir()) if e.is_file() and not e.name.startswith(".")]
+            videos = [e for e in entries if e.suffix.lower() in VIDEO_EXTENSIONS]
+            images = [e for e in entries if e.suffix.lower() in IMAGE_EXTENSIONS]
+            if videos and images:
+                raise DataError(p, f"a folder with {len(images)} images and {len(videos)} videos",
+                                "one scene per input: move the videos out and give them separately")
+            found.extend(videos if videos else [p])
+        elif p.suffix.lower() in VIDEO_EXTENSIONS:
+            found.append(p)
+        else:
+            raise DataError(p, "not a video or a folder of images",
+                            f"videos: {' '.join(VIDEO_EXTENSIONS)}; or a folder of images")
+    taken: set[str] = set()
+    return [_Input(p, scene_name(p, taken)) for p in found]
+
+
+def _candidates(frames: Iterator[Frame], step: int) -> Iterator[tuple[int, Frame]]:
+    for index, frame in enumerate(frames):
+        if index % step == 0:
+            yield index, frame
+
+
+def working_camera(camera: RawCamera, max_side: int) -> tuple[RawCamera, tuple[int, int]]:
+    """The camera of the written frames (undistorted, shrunk to ``max_side``) and their (height, width)."""
+    h, w = camera.hw
+    scale = min(1.0, max_side / max(h, w))
+    hw = (max(round(h * scale), 1), max(round(w * scale), 1))
+    K = crop_resize_intrinsics(camera.K, camera.hw, 0, hw)
+    source = f"{camera.source}; undistorted and resized to {hw[1]}×{hw[0]} by f2depth ingest"
+    return RawCamera(K, np.zeros(5), hw, source), hw
+
+
+def _write_frame(folder: Path, rgb: np.ndarray, camera: RawCamera, hw: tuple[int, int], seconds: float,
+                 index: int) -> None:
+    out = undistort_image(rgb, camera.K, camera.dist) if np.any(camera.dist) else rgb
+    if out.shape[:2] != tuple(hw):
+        out = cv2.resize(out, (hw[1], hw[0]), interpolation=cv2.INTER_AREA)
+    write_rgb(folder / f"r-{seconds:.6f}-{index:06d}.png", out)
+
+
+def ingest(inputs: Sequence[str | os.PathLike], out_dir: str | os.PathLike, config: IngestConfig,
+           camera_file: str | os.PathLike | None = None, fov: float | None = None,
+           progress: bool = True) -> dict:
+    """Ingest ``inputs`` into ``out_dir`` (module docstring) → the report written to ``ingest.json``."""
+    start = time.perf_counter()
+    scenes = collect_inputs(inputs)
+    out = Path(out_dir)
+    camera: RawCamera | None = None
+    written: RawCamera | None = None
+    report: dict[str, dict] = {}
+    with atomic_dir(out) as tmp:
+        for item in scenes:
+            source = open_source(item.path)
+            fps, rotation, rotated = video_info(item.path) if source.kind == "video" else (0.0, 0.0, False)
+            step = max(round(fps / config.rate), 1) if config.rate and fps else config.frame_step
+            keep = FrameFilter(config.min_motion, config.min_sharpness)
+            folder = tmp / item.scene
+            folder.mkdir()
+            read = 0
+            bar = tqdm(total=len(source) or None, desc=f"ingest {item.scene}", unit="frame",
+                       disable=not progress, leave=False)
+            with bar:
+                for index, frame in _candidates(iter(source), step):
+                    bar.update(min(step, max(bar.total - bar.n, 0)) if bar.total else step)
+                    read += 1
+                    hw = frame.rgb.shape[:2]
+                    if camera is None:
+                        first = Path(frame.origin.split("#")[0])
+                        camera = choose_camera(hw, first, camera_file, fov)
+                        written, _ = working_camera(camera, config.max_side)
+                    if hw != tuple(camera.hw):
+                        raise DataError(Path(frame.origin), f"a {hw[1]}×{hw[0]} frame, but the camera "
+                                        f"({camera.source}) is {camera.hw[1]}×{camera.hw[0]}",
+                                        "one camera and one frame size per ingest: resize the frames or "
+                                        "ingest this input on its own")
+                    if keep.offer(frame.rgb) == "kept":
+                        seconds = index / fps if fps else float(index)
+                        _write_frame(folder, frame.rgb, camera, written.hw, seconds, index)
+            if keep.counts["kept"] < MIN_KEPT:
+                raise DataError(item.path, f"only {keep.counts['kept']} of {read} sampled frames kept "
+                                f"({keep.counts['static']} static, {keep.counts['blur']} blurred): the "
+                                "camera hardly moves",
+                                "record with the camera moving, or lower ingest.min_motion (--min-motion)")
+            report[item.scene] = {"input": str(item.path), "kind": source.kind, "fps": fps or None,
+                                  "rotation_deg": rotation, "step": step, "sampled": read,
+                                  "rotation_applied": rotated, **keep.counts}
+        assert written is not None  # every scene kept frames
+        write_json(tmp / CAMERA_FILE, written.to_json())
+        write_text(tmp / "scenes.txt", "".join(f"{s}\n" for s in report))
+        summary = {"scenes": report, "camera": written.to_json(), "input_camera": camera.to_json(),
+                   "settings": asdict(config), "seconds": round(time.perf_counter() - start, 2)}
+        write_json(tmp / "ingest.json", summary)
+    return summary
