@@ -182,8 +182,11 @@ def test_ingest_drops_the_static_stretch_and_keeps_k_exactly(clip):
 def test_ingested_frames_prepare_and_register(clip, tmp_path):
     _, out, summary, _ = clip
     config = PrepareConfig(height=96, width=128, frame_step=1, crop=8, workers=1)
+    synth_gt = tmp_path / "synth_gt" / "nyu_raw" / "living_room"  # a synthetic scene of the same name
+    synth_gt.mkdir(parents=True)
     metrics = prepare(out, tmp_path / "none.mat", tmp_path / "none", tmp_path / "prepared", config,
-                      train_scenes_file=out / "scenes.txt", progress=False)
+                      synth_gt=tmp_path / "synth_gt", train_scenes_file=out / "scenes.txt", progress=False)
+    assert metrics["frames_with_gt"] == 0
     assert metrics["frames"] == summary["scenes"]["living_room"]["kept"] and metrics["tuples"] >= 4
     data = PreparedSet(tmp_path / "prepared")
     np.testing.assert_allclose(data.K, crop_resize_intrinsics(K_TRUE, HW, 8, (96, 128)))
@@ -235,3 +238,33 @@ def test_bad_inputs_are_one_line_errors_and_write_nothing(tmp_path):
     rc = cli_main(["ingest", str(still), "--out", str(tmp_path / "out"), "--camera", str(camera),
                    "--params", str(REPO / "params.yaml"), "--no-progress"])
     assert rc != 0 and not (tmp_path / "out").exists()
+
+
+def test_a_rate_sets_the_step_of_a_video_and_image_folders_are_scenes_too(clip, tmp_path):
+    root, _, _, ideal = clip
+    config = IngestConfig(frame_step=1, rate=10.0, min_motion=0.0, min_sharpness=0.0, max_side=640)
+    report = ingest([root / "living room.avi"], tmp_path / "a", config, camera_file=root / "camera.json",
+                    progress=False)["scenes"]["living_room"]
+    assert report["step"] == 3 and report["sampled"] == len(range(0, STATIC + 30, 3)) == report["kept"]
+    names = [int(f.path.stem.split("-")[-1]) for f in list_frames(tmp_path / "a", "living_room")]
+    assert names == list(range(0, STATIC + 30, 3))
+    folder = tmp_path / "my frames"
+    folder.mkdir()
+    for k in range(STATIC, STATIC + 12):
+        cv2.imwrite(str(folder / f"img_{k:03d}.png"), ideal[k])
+    summary = ingest([folder], tmp_path / "b", CONFIG, fov=70.0, progress=False)
+    report = summary["scenes"]["my_frames"]
+    assert report["kind"] == "images" and report["fps"] is None and report["kept"] >= 3
+    assert report["kept"] + report["static"] == 12
+    assert summary["camera"]["K"][0][0] == pytest.approx(160 / np.tan(np.radians(35)))
+
+
+def test_a_frame_of_another_size_is_named(tmp_path):
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for k in range(4):
+        cv2.imwrite(str(folder / f"{k}.png"), render(np.eye(4), K_TRUE, HW, seed=k))
+    cv2.imwrite(str(folder / "2.png"), np.zeros((100, 200), np.uint8))
+    with pytest.raises(DataError, match=r"2\.png: a 200×100 frame, but the camera \(--fov 60°\) is 320×240"):
+        ingest([folder], tmp_path / "out", CONFIG, fov=60.0, progress=False)
+    assert not (tmp_path / "out").exists()

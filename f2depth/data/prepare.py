@@ -311,7 +311,9 @@ def prepare(nyu_raw: str | os.PathLike, nyu_labeled: str | os.PathLike, nyu_spli
         if not scenes:
             raise DataError(raw_root, f"all {len(raw_scenes)} raw scenes are rooms of labeled test images",
                             "add other scenes or set prepare.train_scenes_file")
-    gt_root = Path(synth_gt) if synth_gt is not None else None
+    # side-car ground truth belongs to the synthetic NYU raw frames; an ingested video (its own camera.json)
+    # has none there, even where its scene names match the synthetic ones
+    gt_root = Path(synth_gt) if synth_gt is not None and camera is NYU_RAW_CAMERA else None
     per_scene = {s: plan_scene(raw_root, s, config.frame_step, gt_root) for s in scenes}
     short = [s for s, tasks in per_scene.items() if len(tasks) < 3]
     if short:
