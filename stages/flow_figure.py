@@ -4,6 +4,8 @@
 Usage: python stages/flow_figure.py [params.yaml]
 
 Pairs: `flow_figure.pairs` of the flow_finetune EPE test pairs (spread evenly); writes `flow_figure.out`.
+A prepared set without ground truth (your own video, docs/ingest.md) gets the predictions on its
+held-out pairs (all pairs without held-out scenes), and no ground-truth column.
 """
 
 import sys
@@ -13,8 +15,8 @@ from f2depth import params as P
 from f2depth import tracking
 from f2depth.data.prepared import PreparedSet
 from f2depth.flow.checkpoint import load_flow_model
-from f2depth.flow.figures import comparison_rows, render_flow_comparison
-from f2depth.flow.finetune_data import gt_pairs, split_pairs
+from f2depth.flow.figures import comparison_rows, prediction_rows, render_flow_comparison
+from f2depth.flow.finetune_data import gt_pairs, image_pairs, split_pairs, spread
 from f2depth.stage import run_stage
 
 TITLES = {"full": "Fine-tuned full", "patch": "Fine-tuned patch (F²Depth)"}
@@ -42,15 +44,17 @@ def main(argv: list[str]) -> None:
     ds = PreparedSet(P.get(p, "data.prepared"))
     split = split_pairs(ds, holdout)
     pairs = list(gt_pairs(ds, split.test, limit=cfg.pairs))
-    if not pairs:
-        raise SystemExit(f"{ds.root}: no held-out pairs with ground truth to draw; the figure needs the "
-                         "synthetic data (data_source: synthetic) and flow_finetune.holdout_scenes >= 1")
     models = {"Pretrained": load_flow_model(pretrained)}
     for loss in ("full", "patch"):
         if loss in losses:
             models[TITLES[loss]] = load_flow_model(template.format(loss=loss))
     out = cfg.out
-    rows = comparison_rows(models, pairs, device)
+    if pairs:
+        rows = comparison_rows(models, pairs, device)
+    else:
+        print(f"flow_figure: {ds.root} has no held-out pairs with ground truth; drawing the predictions only")
+        held = [q for q in ds.pairs if q.scene in set(split.test_scenes)] or list(ds.pairs)
+        rows = prediction_rows(models, image_pairs(ds, spread(held, cfg.pairs)), device)
     render_flow_comparison(rows, out)
     epe = {f"epe.{row.pair_id}.{title}": e[0]
            for row in rows for title, e in row.epe.items() if e[0] is not None}

@@ -286,3 +286,30 @@ def test_stages_write_their_outputs(prepared, tmp_path, monkeypatch):
     _load_stage("flow_figure").main(["flow_figure.py", "params.yaml"])
     fig = cv2.imread(str(tmp_path / "reports" / "figures" / "flow_comparison.png"))
     assert fig is not None and fig.shape[1] > 4 * fig.shape[0] / 2
+
+
+def test_flow_figure_without_ground_truth_draws_the_predictions(tmp_path, monkeypatch, capsys):
+    """A prepared set without ground truth (an ingested video): the figure shows the predictions of every
+    model on spread pairs, with no ground-truth column, instead of failing."""
+    root = tmp_path / "data" / "prepared"
+    write_fake_prepared(root)
+    with (root / "frames.csv").open() as fh:
+        rows = list(csv.reader(fh))
+    with (root / "frames.csv").open("w", newline="") as fh:
+        csv.writer(fh).writerows([rows[0], *[[*r[:4], ""] for r in rows[1:]]])
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("F2DEPTH_MLFLOW", "0")
+    torch.manual_seed(0)
+    for name in ("pretrained", "patch", "full"):
+        save_flow_model(tmp_path / "models" / f"flow_{name}.pt", PWCLite())
+    params = {"seed": 0, "device": "cpu", "data": {"prepared": "data/prepared"},
+              "flow_finetune": {"holdout_scenes": 1, "losses": ["patch", "full"],
+                                "pretrained": "models/flow_pretrained.pt", "model": "models/flow_{loss}.pt"},
+              "flow_figure": {"pairs": 2, "out": "reports/figures/flow_comparison.png"}}
+    (tmp_path / "params.yaml").write_text(yaml.safe_dump(params))
+    _load_stage("flow_figure").main(["flow_figure.py", "params.yaml"])
+    out = capsys.readouterr().out
+    assert "no held-out pairs with ground truth; drawing the predictions only" in out
+    assert "2 pairs × 3 models" in out
+    fig = cv2.imread(str(tmp_path / "reports" / "figures" / "flow_comparison.png"))
+    assert fig is not None and fig.shape[1] > 4 * fig.shape[0] / 2

@@ -35,6 +35,19 @@ def _hw2(flow: torch.Tensor) -> np.ndarray:
     return flow[0].permute(1, 2, 0).float().cpu().numpy()
 
 
+def _predict(models: Mapping[str, FlowNetwork], img1: torch.Tensor, img2: torch.Tensor, device: str
+             ) -> dict[str, torch.Tensor]:
+    out = {}
+    for title, model in models.items():
+        model.to(device).eval()
+        out[title] = model(img1.to(device), img2.to(device), with_backward=False)[0][0].cpu()
+    return out
+
+
+def _rgb(img: torch.Tensor) -> np.ndarray:
+    return (img[0].permute(1, 2, 0).numpy() * 255).round().astype(np.uint8)
+
+
 @torch.no_grad()
 def comparison_rows(models: Mapping[str, FlowNetwork], pairs: Iterable[GTPair], device: str = "cpu"
                     ) -> list[FigureRow]:
@@ -42,15 +55,25 @@ def comparison_rows(models: Mapping[str, FlowNetwork], pairs: Iterable[GTPair], 
     rows = []
     for g in pairs:
         flows, epe = {}, {}
-        for title, model in models.items():
-            model.to(device).eval()
-            pred = model(g.img1.to(device), g.img2.to(device), with_backward=False)[0][0].cpu()
+        for title, pred in _predict(models, g.img1, g.img2, device).items():
             stats = epe_stats(pred, g.flow, g.occluded, g.low_texture, g.valid)
             flows[title] = _hw2(pred)
             epe[title] = (stats["epe_all"], stats["epe_low_texture"])
-        rgb = (g.img1[0].permute(1, 2, 0).numpy() * 255).round().astype(np.uint8)
-        gt = _hw2(g.flow * g.valid)
-        rows.append(FigureRow(g.pair_id, rgb, flows, epe, gt))
+        rows.append(FigureRow(g.pair_id, _rgb(g.img1), flows, epe, _hw2(g.flow * g.valid)))
+    return rows
+
+
+@torch.no_grad()
+def prediction_rows(models: Mapping[str, FlowNetwork],
+                    pairs: Iterable[tuple[str, torch.Tensor, torch.Tensor]], device: str = "cpu"
+                    ) -> list[FigureRow]:
+    """:func:`comparison_rows` for pairs without ground truth (``(pair_id, img1, img2)``, images
+    ``(1,3,H,W)`` in [0,1]): the predictions only, no EPE and no ground-truth column."""
+    rows = []
+    for pair_id, img1, img2 in pairs:
+        preds = _predict(models, img1, img2, device)
+        rows.append(FigureRow(pair_id, _rgb(img1), {t: _hw2(f) for t, f in preds.items()},
+                              dict.fromkeys(preds, (None, None)), None))
     return rows
 
 

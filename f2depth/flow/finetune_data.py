@@ -138,12 +138,22 @@ def gt_pair(ds: PreparedSet, p: PairRecord, K: np.ndarray | None = None) -> GTPa
                   low_texture_mask(img1))
 
 
+def spread(pairs: list[PairRecord], limit: int | None) -> list[PairRecord]:
+    """At most ``limit`` of ``pairs`` (None: all), spread evenly over the list."""
+    if limit is not None and len(pairs) > limit:
+        return [pairs[int(i)] for i in np.linspace(0, len(pairs) - 1, limit).round()]
+    return list(pairs)
+
+
 def scored_pairs(ds: PreparedSet, pairs: list[PairRecord], limit: int | None = None) -> list[PairRecord]:
     """The pairs that have ground truth; with ``limit``, at most that many, spread evenly over the list."""
-    scored = [p for p in pairs if _has_gt(ds, p)]
-    if limit is not None and len(scored) > limit:
-        scored = [scored[int(i)] for i in np.linspace(0, len(scored) - 1, limit).round()]
-    return scored
+    return spread([p for p in pairs if _has_gt(ds, p)], limit)
+
+
+def image_pairs(ds: PreparedSet, pairs: list[PairRecord]) -> Iterator[tuple[str, torch.Tensor, torch.Tensor]]:
+    """``(pair_id, img1, img2)`` of each pair, images ``(1,3,H,W)`` in [0,1] (lazily)."""
+    return ((p.pair_id, to_tensor(ds.image(p.frame1))[None], to_tensor(ds.image(p.frame2))[None])
+            for p in pairs)
 
 
 def gt_pairs(ds: PreparedSet, pairs: list[PairRecord], limit: int | None = None) -> Iterator[GTPair]:
