@@ -53,7 +53,8 @@ def main(argv: list[str]) -> None:
         rows = comparison_rows(models, pairs, device)
     else:
         print(f"flow_figure: {ds.root} has no held-out pairs with ground truth; drawing the predictions only")
-        held = [q for q in ds.pairs if q.scene in set(split.test_scenes)] or list(ds.pairs)
+        test_scenes = set(split.test_scenes)
+        held = [q for q in ds.pairs if q.scene in test_scenes] or list(ds.pairs)
         rows = prediction_rows(models, image_pairs(ds, spread(held, cfg.pairs)), device)
     render_flow_comparison(rows, out)
     epe = {f"epe.{row.pair_id}.{title}": e[0]

@@ -7,6 +7,7 @@ Every source yields :class:`Frame` objects lazily (a long video is never held in
 from __future__ import annotations
 
 import contextlib
+import math
 import os
 import sys
 import tempfile
@@ -103,7 +104,9 @@ class VideoSource:
     """Frames of a video file decoded by OpenCV (``cv2.VideoCapture``), named ``frame_000000``, ….
 
     Opening checks that the first frame decodes; ``len`` is the frame count the container reports
-    (0 when it reports none). Decoding stops at the first frame that does not decode.
+    (0 when it reports none). ``fps`` is the container's frame rate (0 when it gives none),
+    ``rotation_deg`` its rotation metadata and ``rotation_applied`` whether OpenCV rotates the decoded
+    frames by it. Decoding stops at the first frame that does not decode.
     """
 
     kind = "video"
@@ -117,6 +120,10 @@ class VideoSource:
             opened = cap.isOpened()
             ok, frame = cap.read() if opened else (False, None)
             self.frame_count = max(int(cap.get(cv2.CAP_PROP_FRAME_COUNT)), 0) if opened else 0
+            fps = float(cap.get(cv2.CAP_PROP_FPS) or 0.0) if opened else 0.0
+            self.fps = fps if math.isfinite(fps) and fps > 0 else 0.0
+            self.rotation_deg = float(cap.get(cv2.CAP_PROP_ORIENTATION_META) or 0.0) if opened else 0.0
+            self.rotation_applied = bool(cap.get(cv2.CAP_PROP_ORIENTATION_AUTO)) if opened else False
             cap.release()
         detail = f" (decoder: {chatter[0][:200]})" if chatter[0] else ""
         if not opened:

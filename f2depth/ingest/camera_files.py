@@ -22,6 +22,7 @@ import yaml
 
 from f2depth.camera import RawCamera
 from f2depth.data.errors import DataError
+from f2depth.inference.outputs import intrinsics
 
 #: The 35 mm film frame (36 × 24 mm): its diagonal is what "35 mm equivalent" focal lengths refer to.
 FILM_DIAGONAL_MM = math.hypot(36.0, 24.0)
@@ -39,10 +40,6 @@ _COLMAP = {
 }
 
 
-def pinhole(fx: float, fy: float, cx: float, cy: float) -> np.ndarray:
-    return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
-
-
 def _camera(path: Path, fx, fy, cx, cy, width, height, dist, what: str) -> RawCamera:
     values = [fx, fy, cx, cy, width, height, *dist]
     try:
@@ -58,7 +55,8 @@ def _camera(path: Path, fx, fy, cx, cy, width, height, dist, what: str) -> RawCa
                         _FIX_FILE)
     coeffs = np.zeros(5)
     coeffs[:len(dist)] = numbers[6:]
-    return RawCamera(pinhole(fx, fy, cx, cy), coeffs, (int(round(height)), int(round(width))),
+    hw = (int(round(height)), int(round(width)))
+    return RawCamera(intrinsics(*hw, fx=fx, fy=fy, cx=cx, cy=cy), coeffs, hw,
                   f"{what} {path}")
 
 
@@ -131,7 +129,7 @@ def from_fov(fov_deg: float, hw: tuple[int, int]) -> RawCamera:
         raise DataError(Path("--fov"), f"{fov_deg}° is not a horizontal field of view", "give 1–179 degrees")
     h, w = hw
     f = (w / 2) / math.tan(math.radians(fov_deg) / 2)
-    return RawCamera(pinhole(f, f, (w - 1) / 2, (h - 1) / 2), np.zeros(5), hw, f"--fov {fov_deg:g}°")
+    return RawCamera(intrinsics(h, w, fx=f), np.zeros(5), hw, f"--fov {fov_deg:g}°")
 
 
 def focal_35mm(path: str | os.PathLike) -> float | None:
@@ -157,7 +155,7 @@ def from_exif(path: str | os.PathLike, hw: tuple[int, int]) -> RawCamera | None:
         return None
     h, w = hw
     f = f35 * math.hypot(w, h) / FILM_DIAGONAL_MM
-    return RawCamera(pinhole(f, f, (w - 1) / 2, (h - 1) / 2), np.zeros(5), hw,
+    return RawCamera(intrinsics(h, w, fx=f), np.zeros(5), hw,
                   f"EXIF FocalLengthIn35mmFilm {f35:g} mm of {path}")
 
 

@@ -13,7 +13,6 @@ built aside and swapped in at the end: a failed ingest leaves nothing that looks
 
 from __future__ import annotations
 
-import math
 import os
 import re
 import time
@@ -21,18 +20,17 @@ from collections.abc import Iterator, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-import cv2
 import numpy as np
 from tqdm import tqdm
 
-from f2depth.camera import RawCamera, crop_resize_intrinsics, undistort_image
+from f2depth.camera import RawCamera, crop_resize_intrinsics
 from f2depth.data.errors import DataError
 from f2depth.data.nyu_raw import CAMERA_FILE
+from f2depth.data.prepare import prepare_image
 from f2depth.inference.sources import (
     IMAGE_EXTENSIONS,
     VIDEO_EXTENSIONS,
     Frame,
-    captured_stderr_fd,
     open_source,
 )
 from f2depth.ingest.camera_files import choose_camera
@@ -57,20 +55,6 @@ class IngestConfig:
 class _Input:
     path: Path
     scene: str
-
-
-def video_info(path: Path) -> tuple[float, float, bool]:
-    """(frames per second or 0 when the container gives none, rotation metadata in degrees, whether OpenCV
-    applies that rotation to the decoded frames) of a video."""
-    with captured_stderr_fd():
-        cap = cv2.VideoCapture(str(path))
-        try:
-            fps = float(cap.get(cv2.CAP_PROP_FPS) or 0.0)
-            rotation = float(cap.get(cv2.CAP_PROP_ORIENTATION_META) or 0.0)
-            applied = bool(cap.get(cv2.CAP_PROP_ORIENTATION_AUTO))
-        finally:
-            cap.release()
-    return (fps if math.isfinite(fps) and fps > 0 else 0.0), rotation, applied
 
 
 def scene_name(path: Path, taken: set[str]) -> str:
@@ -114,22 +98,14 @@ def _candidates(frames: Iterator[Frame], step: int) -> Iterator[tuple[int, Frame
             yield index, frame
 
 
-def working_camera(camera: RawCamera, max_side: int) -> tuple[RawCamera, tuple[int, int]]:
-    """The camera of the written frames (undistorted, shrunk to ``max_side``) and their (height, width)."""
+def working_camera(camera: RawCamera, max_side: int) -> RawCamera:
+    """The camera of the written frames: undistorted, shrunk to at most ``max_side`` px on the long side."""
     h, w = camera.hw
     scale = min(1.0, max_side / max(h, w))
     hw = (max(round(h * scale), 1), max(round(w * scale), 1))
     K = crop_resize_intrinsics(camera.K, camera.hw, 0, hw)
     source = f"{camera.source}; undistorted and resized to {hw[1]}×{hw[0]} by f2depth ingest"
-    return RawCamera(K, np.zeros(5), hw, source), hw
-
-
-def _write_frame(folder: Path, rgb: np.ndarray, camera: RawCamera, hw: tuple[int, int], seconds: float,
-                 index: int) -> None:
-    out = undistort_image(rgb, camera.K, camera.dist) if np.any(camera.dist) else rgb
-    if out.shape[:2] != tuple(hw):
-        out = cv2.resize(out, (hw[1], hw[0]), interpolation=cv2.INTER_AREA)
-    write_rgb(folder / f"r-{seconds:.6f}-{index:06d}.png", out)
+    return RawCamera(K, np.zeros(5), hw, source)
 
 
 def ingest(inputs: Sequence[str | os.PathLike], out_dir: str | os.PathLike, config: IngestConfig,
@@ -145,23 +121,24 @@ def ingest(inputs: Sequence[str | os.PathLike], out_dir: str | os.PathLike, conf
     with atomic_dir(out) as tmp:
         for item in scenes:
             source = open_source(item.path)
-            fps, rotation, rotated = video_info(item.path) if source.kind == "video" else (0.0, 0.0, False)
+            video = source.kind == "video"
+            fps = source.fps if video else 0.0
             step = max(round(fps / config.rate), 1) if config.rate and fps else config.frame_step
             keep = FrameFilter(config.min_motion, config.min_sharpness)
             folder = tmp / item.scene
             folder.mkdir()
             read = 0
-            bar = tqdm(total=len(source) or None, desc=f"ingest {item.scene}", unit="frame",
+            bar = tqdm(total=-(-len(source) // step) or None, desc=f"ingest {item.scene}", unit="frame",
                        disable=not progress, leave=False)
             with bar:
                 for index, frame in _candidates(iter(source), step):
-                    bar.update(min(step, max(bar.total - bar.n, 0)) if bar.total else step)
+                    bar.update()
                     read += 1
                     hw = frame.rgb.shape[:2]
                     if camera is None:
                         first = Path(frame.origin.split("#")[0])
                         camera = choose_camera(hw, first, camera_file, fov)
-                        written, _ = working_camera(camera, config.max_side)
+                        written = working_camera(camera, config.max_side)
                     if hw != tuple(camera.hw):
                         raise DataError(Path(frame.origin), f"a {hw[1]}×{hw[0]} frame, but the camera "
                                         f"({camera.source}) is {camera.hw[1]}×{camera.hw[0]}",
@@ -169,15 +146,18 @@ def ingest(inputs: Sequence[str | os.PathLike], out_dir: str | os.PathLike, conf
                                         "ingest this input on its own")
                     if keep.offer(frame.rgb) == "kept":
                         seconds = index / fps if fps else float(index)
-                        _write_frame(folder, frame.rgb, camera, written.hw, seconds, index)
+                        write_rgb(folder / f"r-{seconds:.6f}-{index:06d}.png",
+                                  prepare_image(frame.rgb, 0, written.hw, camera=camera))
             if keep.counts["kept"] < MIN_KEPT:
                 raise DataError(item.path, f"only {keep.counts['kept']} of {read} sampled frames kept "
                                 f"({keep.counts['static']} static, {keep.counts['blur']} blurred): the "
                                 "camera hardly moves",
                                 "record with the camera moving, or lower ingest.min_motion (--min-motion)")
             report[item.scene] = {"input": str(item.path), "kind": source.kind, "fps": fps or None,
-                                  "rotation_deg": rotation, "step": step, "sampled": read,
-                                  "rotation_applied": rotated, **keep.counts}
+                                  "rotation_deg": source.rotation_deg if video else 0.0, "step": step,
+                                  "sampled": read,
+                                  "rotation_applied": source.rotation_applied if video else False,
+                                  **keep.counts}
         assert written is not None  # every scene kept frames
         write_json(tmp / CAMERA_FILE, written.to_json())
         write_text(tmp / "scenes.txt", "".join(f"{s}\n" for s in report))
