@@ -16,6 +16,10 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
+#: The depth range in metres, defined once: DepthCNN's sigmoid maps to it (Monodepth2's and P²Net's
+#: ``disp_to_depth``), the losses and the evaluation clip to it (P²Net's NYU evaluation: [0.1, 10] m).
+MIN_DEPTH = 0.1
+MAX_DEPTH = 10.0
 #: Added to the projected z before the perspective division (as Monodepth2 / P²Net do).
 PROJ_EPS = 1e-7
 #: Below this squared angle (rad²) ``axis_angle_to_matrix`` uses Taylor series of sin θ/θ, (1−cos θ)/θ².

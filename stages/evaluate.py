@@ -30,10 +30,11 @@ import torch
 
 from f2depth import params as P
 from f2depth import tracking
+from f2depth.data.errors import DataError
 from f2depth.data.nyu_labeled import GT_KEYS
+from f2depth.data.samples import limit
 from f2depth.depth import load_checkpoint, read_checkpoint
 from f2depth.eval import registry
-from f2depth.eval.inputs import limit
 from f2depth.eval.suite import SuiteConfig, evaluate_model, metrics_document, model_disparity, rows_csv
 from f2depth.io import save_npz, write_json, write_text
 from f2depth.stage import run_stage
@@ -77,8 +78,8 @@ def main(argv: list[str]) -> None:
     files = [model_dir / f"seed{s}.pt" for s in seeds]
     missing = [str(f) for f in files if not f.is_file()]
     if missing:
-        raise SystemExit(f"{', '.join(missing)}: not found; run `dvc repro train_depth@{args.variant}` "
-                         "(train_depth.seeds lists the seeds to evaluate)")
+        raise DataError(", ".join(missing), "not found", f"run `dvc repro train_depth@{args.variant}` "
+                        "(train_depth.seeds lists the seeds to evaluate)")
     if stage.threads:
         torch.set_num_threads(stage.threads)
     sets = load_sets(p, cfg.datasets, stage.max_images)

@@ -24,6 +24,7 @@ import torch
 
 from f2depth import params as P
 from f2depth import tracking
+from f2depth.data.errors import DataError
 from f2depth.data.prepared import PreparedSet
 from f2depth.epochs import file_digest, write_history
 from f2depth.flow.checkpoint import load_flow_model, save_flow_model
@@ -86,8 +87,8 @@ def main(argv: list[str]) -> None:
     split = split_pairs(ds, stage.holdout_scenes)
     pretrained = Path(stage.pretrained)
     if not pretrained.is_file():
-        raise SystemExit(f"{pretrained}: pretrained flow model not found; run `dvc repro flow_pretrain` or "
-                         "point flow_finetune.pretrained at a models/flow_*.pt or an ARFlow *.pth.tar")
+        raise DataError(pretrained, "pretrained flow model not found", "run `dvc repro flow_pretrain` or "
+                        "point flow_finetune.pretrained at a models/flow_*.pt or an ARFlow *.pth.tar")
     model_path = Path(stage.model.format(loss=loss))
     out_dir = Path(stage.out_dir)
     history_csv, metrics_json = out_dir / loss / "history.csv", out_dir / f"{loss}.json"

@@ -1,109 +1,105 @@
-"""dvc.yaml declares, for every stage, every library module its script imports (directly or through other
-library modules, at module level or inside a function): a change to any of them re-runs the stage."""
+"""dvc.yaml declares, for every stage, exactly the library files its script imports (directly or through
+other library modules, at module level or inside a function; not under TYPE_CHECKING) and nothing more:
+a change to one of them re-runs the stage, a change to any other file does not. tools/dvc_deps.py writes
+the lists; these tests fail on a missing and on a superfluous dep, and on a dvc.yaml the tool would write
+differently."""
 
 from __future__ import annotations
 
-import ast
-import re
+import sys
 from pathlib import Path
 
+import pytest
 import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tools"))
+import dvc_deps  # noqa: E402
+
+from f2depth.train.step import TERMS  # noqa: E402
 
 
-def module_file(name: str) -> Path | None:
-    """The file of library module ``name`` (``f2depth.a.b``), or None when it is not one."""
-    base = ROOT.joinpath(*name.split("."))
-    for candidate in (base.with_suffix(".py"), base / "__init__.py"):
-        if candidate.is_file():
-            return candidate
-    return None
-
-
-def lazy_homes(package: str) -> dict[str, str]:
-    """``_HOMES`` of a package whose ``__init__`` imports its names on first use (name → submodule)."""
-    init = ROOT.joinpath(*package.split("."), "__init__.py")
-    if not init.is_file():
-        return {}
-    for node in ast.parse(init.read_text()).body:
-        if isinstance(node, ast.Assign) and any(getattr(t, "id", "") == "_HOMES" for t in node.targets):
-            return ast.literal_eval(node.value)
-    return {}
-
-
-def imported_modules(path: Path) -> set[str]:
-    """Library modules ``path`` imports (``from f2depth.x import y`` counts ``f2depth.x.y`` when y is one)."""
-    names: set[str] = set()
-    for node in ast.walk(ast.parse(path.read_text(), str(path))):
-        if isinstance(node, ast.Import):
-            names.update(alias.name for alias in node.names)
-        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
-            names.add(node.module)
-            homes = lazy_homes(node.module)
-            names.update(f"{node.module}.{homes.get(alias.name, alias.name)}" for alias in node.names)
-    found = set()
-    for name in names:
-        if name.split(".")[0] != "f2depth":
-            continue
-        parts = name.split(".")
-        # importing f2depth.a.b runs f2depth/__init__ and f2depth/a/__init__ too
-        prefixes = (".".join(parts[:i]) for i in range(1, len(parts) + 1))
-        found.update(prefix for prefix in prefixes if module_file(prefix))
-    return found
-
-
-def closure(script: Path) -> set[Path]:
-    """Every library file ``script`` reaches through imports."""
-    seen: set[str] = set()
-    todo = list(imported_modules(script))
-    while todo:
-        name = todo.pop()
-        if name in seen:
-            continue
-        seen.add(name)
-        todo.extend(imported_modules(module_file(name)) - seen)
-    return {module_file(name) for name in seen}
-
-
-def covered(path: Path, deps: list[str]) -> bool:
-    rel = path.relative_to(ROOT).as_posix()
-    return any(rel == dep or rel.startswith(dep.rstrip("/") + "/") for dep in deps)
-
-
-def stages() -> list[tuple[str, Path, list[str]]]:
-    spec = yaml.safe_load((ROOT / "dvc.yaml").read_text())["stages"]
-    out = []
-    for name, stage in spec.items():
-        body = stage.get("do", stage)
-        script = re.search(r"python (stages/\w+\.py)", body["cmd"]).group(1)
-        deps = [d for d in body["deps"] if "${" not in d]
-        out.append((name, ROOT / script, deps))
-    return out
-
-
-def test_the_checker_follows_imports_inside_functions_and_packages(tmp_path):
+def test_the_checker_follows_imports_inside_functions_and_packages_but_not_type_checking(tmp_path):
     script = tmp_path / "s.py"
-    script.write_text("def main():\n    from f2depth.train.run import run_variant\n")
-    files = {p.relative_to(ROOT).as_posix() for p in closure(script)}
+    script.write_text("from typing import TYPE_CHECKING\n"
+                      "if TYPE_CHECKING:\n    from f2depth.report.published import Pair\n"
+                      "def main():\n    from f2depth.train.run import run_variant\n")
+    files = {p.relative_to(ROOT).as_posix() for p in dvc_deps.closure(script)}
     assert {"f2depth/__init__.py", "f2depth/train/__init__.py", "f2depth/train/run.py",
             "f2depth/geometry.py"} <= files
-    assert not covered(ROOT / "f2depth/eval/scoring.py", ["f2depth/eval/nyu.py", "f2depth/train"])
-    assert covered(ROOT / "f2depth/eval/scoring.py", ["f2depth/eval"])
+    assert "f2depth/report/published.py" not in files  # TYPE_CHECKING only: it never runs
     lazy = tmp_path / "lazy.py"
     lazy.write_text("from f2depth.keypoints import KeypointFile\n")
-    assert ROOT / "f2depth/keypoints/store.py" in closure(lazy)  # a name the package imports on first use
+    assert ROOT / "f2depth/keypoints/store.py" in dvc_deps.closure(lazy)  # imported on first use
 
 
-def test_every_stage_declares_the_library_modules_it_imports():
-    listed = stages()
-    assert len(listed) >= 10
-    package_root = ROOT / "f2depth/__init__.py"  # the version string only: no stage lists it
-    assert not imported_modules(package_root)
-    missing = []
-    for name, script, deps in listed:
-        assert script.relative_to(ROOT).as_posix() in deps, f"{name}: its script is not a dep"
-        for path in sorted(closure(script)):
-            if path != package_root and not covered(path, deps):
-                missing.append(f"{name}: {path.relative_to(ROOT).as_posix()}")
-    assert not missing, "add to the stage's deps in dvc.yaml:\n  " + "\n  ".join(missing)
+def test_every_stage_declares_exactly_the_library_files_it_imports():
+    assert len(dvc_deps.stage_scripts(ROOT / "dvc.yaml")) >= 10
+    assert not dvc_deps.imported_modules(ROOT / dvc_deps.PACKAGE_ROOT)  # the version string only
+    left = dvc_deps.differences()
+    assert not left, "run python tools/dvc_deps.py --write:\n  " + "\n  ".join(left)
+
+
+def planted_root(tmp_path: Path, edit) -> Path:
+    """A copy of the repository's pipeline definition (code linked, dvc.yaml edited by ``edit``)."""
+    for name in ("f2depth", "stages"):
+        (tmp_path / name).symlink_to(ROOT / name)
+    (tmp_path / "params.yaml").write_text((ROOT / "params.yaml").read_text())
+    (tmp_path / "dvc.yaml").write_text(edit((ROOT / "dvc.yaml").read_text()))
+    return tmp_path
+
+
+def test_a_missing_and_a_superfluous_dep_are_both_named(tmp_path):
+    text = (ROOT / "dvc.yaml").read_text()
+    assert "      - f2depth/superpixels.py\n" in text.split("  keypoints:")[0]  # prepare's
+    assert "f2depth/report/published.py" not in text.split("  tables:")[0]
+
+    def plant(t: str) -> str:
+        head, tail = t.split("  keypoints:", 1)
+        head = head.replace("      - f2depth/superpixels.py\n", "      - f2depth/report/published.py\n")
+        return head + "  keypoints:" + tail
+
+    left = dvc_deps.differences(planted_root(tmp_path, plant))
+    assert left == ["prepare: missing f2depth/superpixels.py",
+                    "prepare: superfluous f2depth/report/published.py"]
+
+
+def test_a_whole_folder_dep_is_superfluous(tmp_path):
+    def plant(t: str) -> str:
+        dep = "      - f2depth/superpixels.py\n"
+        return t.replace(dep, dep + "      - f2depth/eval\n", 1)
+
+    assert "prepare: superfluous f2depth/eval" in dvc_deps.differences(planted_root(tmp_path, plant))
+
+
+def test_dvc_yaml_is_what_the_tool_writes():
+    text = (ROOT / "dvc.yaml").read_text()
+    assert dvc_deps.rewrite(text) == text, "run python tools/dvc_deps.py --write"
+    for stage in yaml.safe_load(text)["stages"].values():  # what a user edits comes first
+        body = stage.get("do", stage)
+        keys = [k for k in body if k in dvc_deps.KEY_ORDER]
+        assert keys == sorted(keys, key=dvc_deps.KEY_ORDER.index)
+
+
+def test_each_variant_depends_on_the_weights_it_trains_with_only():
+    params = yaml.safe_load((ROOT / "params.yaml").read_text())
+    stage = yaml.safe_load((ROOT / "dvc.yaml").read_text())["stages"]["train_depth"]
+    assert list(stage["foreach"]) == list(params["variants"])
+    for name, variant in params["variants"].items():
+        item = stage["foreach"][name]
+        assert item["flow"] == (variant["flow"] or "stages/train_depth.py")
+        used = {t for t in TERMS if item[t] == f"loss_weights.{t}"}
+        assert used == set(TERMS) - set(variant["without"]), name
+        assert all(item[t] == f"variants.{name}" for t in set(TERMS) - used), name
+    assert params["variants"]["baseline"]["without"] == ["rigid", "feature"]  # the case that matters
+    body = stage["do"]
+    assert "loss_weights" not in body["params"]  # the whole section would re-train every variant
+    assert [f"${{item.{t}}}" for t in TERMS] == [p for p in body["params"] if str(p).startswith("${item.")]
+    assert "${item.flow}" in body["deps"]
+
+
+@pytest.mark.parametrize("stage", ["flow_pretrain", "train_depth", "evaluate"])
+def test_the_papers_numbers_reach_the_tables_stage_only(stage):
+    deps = dvc_deps.declared_code_deps(ROOT / "dvc.yaml")
+    assert "f2depth/report/published.py" in deps["tables"]
+    assert not any(d.startswith("f2depth/report/") for d in deps[stage])

@@ -9,8 +9,8 @@ import pytest
 import torch
 import torch.nn.functional as F
 
+from f2depth.data.samples import EvalSample
 from f2depth.eval.campus import PROTOCOL
-from f2depth.eval.inputs import EvalSample
 from f2depth.eval.scoring import network_size, sample_at_points
 
 A, B, CV = 0.5, 0.03, 0.011  # disp(u, v) = A + B·u + CV·v, a known function of the pixel position

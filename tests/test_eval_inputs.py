@@ -1,4 +1,5 @@
-"""Tests for f2depth.eval.inputs: the typed sample, subsets, input resizing and batching."""
+"""Tests for f2depth.data.samples (the typed sample, subsets) and f2depth.eval.inputs (input resizing,
+batching)."""
 
 from __future__ import annotations
 
@@ -7,8 +8,9 @@ import pytest
 import torch
 from PIL import Image
 
+from f2depth.data import samples as S
+from f2depth.data.samples import EvalSample
 from f2depth.eval import inputs as I
-from f2depth.eval.inputs import EvalSample
 
 
 def test_sample_name_and_checks():
@@ -44,18 +46,18 @@ class Scenes:
 
 
 def test_spread_limit_and_middle_frames():
-    assert I.spread(10, None) == list(range(10))
-    assert I.spread(10, 3) in ([0, 4, 9], [0, 5, 9])
-    assert I.spread(3, 5) == [0, 1, 2]
+    assert S.spread(10, None) == list(range(10))
+    assert S.spread(10, 3) in ([0, 4, 9], [0, 5, 9])
+    assert S.spread(3, 5) == [0, 1, 2]
     with pytest.raises(ValueError):
-        I.spread(10, 0)
+        S.spread(10, 0)
     data = Scenes([f"s{k}" for k in range(100, 110)])
-    sub = I.limit(data, 2)
+    sub = S.limit(data, 2)
     assert len(sub) == 2 and list(sub) == ["s100", "s109"] and sub[1] == "s109" and sub.scene(1) == "s109"
-    assert I.limit(data, None) is data
+    assert S.limit(data, None) is data
     frames = Scenes(["chess"] * 3 + ["fire"] * 4 + ["chess"])
-    assert I.middle_frames(frames) == [2, 5]  # chess: 0, 1, 2, 7 → 2; fire: 3..6 → 5
-    assert I.middle_frames(I.limit(frames, 4)) == [1, 2]  # positions 0, 2, 5, 7 of frames
+    assert S.middle_frames(frames) == [2, 5]  # chess: 0, 1, 2, 7 → 2; fire: 3..6 → 5
+    assert S.middle_frames(S.limit(frames, 4)) == [1, 2]  # positions 0, 2, 5, 7 of frames
 
 
 def test_resize_filters():

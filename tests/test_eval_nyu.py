@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 import torch
 
+from f2depth.data.samples import EvalSample
 from f2depth.eval import nyu
-from f2depth.eval.inputs import EvalSample
 from f2depth.eval.scoring import resolve_crop
 
 NET_HW = (61, 187)  # 427 / 7, 561 / 3

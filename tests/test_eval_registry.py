@@ -1,6 +1,7 @@
-"""The registry of test sets (f2depth.eval.registry) is the one list `evaluate`, `tables` and `synth` read:
-every line resolves to its protocol, every stand-in it names is one synth makes, and the DVC stages that
-read the registry depend on every module and data path the registered test sets bring."""
+"""The registry of test sets (f2depth.eval.registry) is the one list `evaluate` and `tables` read: every
+line resolves to its protocol and has a layout in the tables (f2depth.report.layouts), every stand-in it
+names is one synth makes, and the DVC stages that read the registry depend on every module and data path
+the registered test sets bring."""
 
 from __future__ import annotations
 
@@ -14,6 +15,7 @@ import yaml
 from f2depth.data.errors import DataError
 from f2depth.eval import registry, suite
 from f2depth.eval.protocol import Protocol
+from f2depth.report import layouts
 from f2depth.synth import FINISH, SynthConfig, plan
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -29,8 +31,16 @@ def test_every_line_resolves_to_its_protocol():
     assert set(datasets) <= set(registry.NAMES)
 
 
+def test_every_registered_test_set_has_a_layout_in_the_tables():
+    assert tuple(layouts.LAYOUTS) == registry.NAMES
+    assert layouts.layout("sevenscenes").column == "s7"
+    with pytest.raises(ValueError, match="no layout in f2depth/report/layouts.py"):
+        layouts.layout("kitti")
+
+
 def test_synth_makes_the_stand_ins_the_registry_names():
     assert plan.standins() == ["nyu_labeled", "sevenscenes", "campus"]
+    assert [e.standin for e in registry.ENTRIES] == plan.standins()
     assert set(plan.STANDINS) == set(FINISH)
     datasets = {job.dataset for job in plan.jobs(SynthConfig())}
     assert set(plan.standins()) <= datasets

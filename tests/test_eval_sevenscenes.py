@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 import torch
 
+from f2depth.data.samples import EvalSample
 from f2depth.data.sevenscenes import read_depth_mm
 from f2depth.eval import sevenscenes as S
-from f2depth.eval.inputs import EvalSample
 from f2depth.eval.scoring import Settings
 
 PROTOCOL = S.PROTOCOL

@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 import torch
 
+from f2depth.data.samples import EvalSample
 from f2depth.eval import registry, suite
-from f2depth.eval.inputs import EvalSample
 from f2depth.eval.metrics import METRIC_NAMES
 
 

@@ -133,3 +133,17 @@ def test_own_format_wrong_kind_or_version(tmp_path):
     torch.save({"format": "f2depth.flow", "version": 3, "network": "pwclite", "state_dict": {}}, path)
     with pytest.raises(CheckpointError, match="flow version 3, this code reads f2depth.flow version 2"):
         load_flow_model(path)
+
+
+def test_a_stage_given_a_bad_flow_checkpoint_ends_with_one_line(tmp_path, capsys):
+    from f2depth.flow.checkpoint import load_flow_model
+    from f2depth.stage import run_stage
+
+    depth_model = tmp_path / "seed0.pt"
+    torch.save({"format": "f2depth.depth", "state_dict": {}}, depth_model)
+    for bad in (tmp_path / "missing.pt", depth_model):
+        with pytest.raises(SystemExit) as exit_:
+            run_stage("train_depth", lambda argv, p=bad: load_flow_model(p), [])
+        assert exit_.value.code == 1
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and err.startswith(f"train_depth: {bad}: "), err

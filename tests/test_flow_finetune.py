@@ -225,8 +225,8 @@ def test_resume_after_interruption_gives_the_same_weights(prepared, tmp_path):
     assert seen == [1, 1] * 3
     # a different fingerprint does not resume; the degenerate flow under the paper's check is reported
     with pytest.warns(UserWarning, match="marked every pixel occluded"):
-        other = finetune(fresh(), data, FinetuneConfig(epochs=1, batch_size=2), (), tmp_path / "b.pt",
-                         {"x": 2}, progress=False)
+        other = finetune(fresh(), data, FinetuneConfig(epochs=1, batch_size=2, occlusion="forward_backward"),
+                         (), tmp_path / "b.pt", {"x": 2}, progress=False)
     assert other["resumed_from"] == 0 and other["history"][0]["photometric"] == 0
     assert evaluate_epe(resumed, test)["pairs"] == 1
 

@@ -81,10 +81,16 @@ def test_pretrain_runs_both_phases_and_resumes_identically(tmp_path):
         assert torch.allclose(v, resumed.state_dict()[k], atol=1e-5), k
     # another configuration or data set does not resume from a foreign state
     state_file = tmp_path / "r2" / "last.pt"
-    assert load_state(state_file, run_fingerprint(TINY, len(pairs)))[0] is not None
+    assert load_state(state_file, run_fingerprint(TINY, pairs))[0] is not None
     other = PretrainConfig(**{**vars(TINY), "lr": 2e-4})
-    assert load_state(state_file, run_fingerprint(other, len(pairs)))[0] is None
-    assert load_state(state_file, run_fingerprint(TINY, len(pairs) + 1))[0] is None
+    assert load_state(state_file, run_fingerprint(other, pairs))[0] is None
+    assert load_state(state_file, run_fingerprint(TINY, pairs[:1]))[0] is None
+    # the same number of pairs, regenerated with other contents: starts afresh
+    image = cv2.imread(str(pairs[0].image2))
+    cv2.imwrite(str(pairs[0].image2), 255 - image)
+    assert load_state(state_file, run_fingerprint(TINY, pairs))[0] is None
+    again = pretrain(PWCLite(), pairs, TINY, tmp_path / "r2", progress=False)
+    assert again["resumed_from"] == 0 and again["epochs_run"] == 2
     clear_resume(tmp_path / "r2")
     assert not (tmp_path / "r2").exists()
 

@@ -22,10 +22,10 @@ from f2depth import params as P
 from f2depth.cli import main
 from f2depth.data.errors import DataError
 from f2depth.data.images import MAX_PIXELS, header_hw, read_image
+from f2depth.data.samples import EvalSample
 from f2depth.depth import load_checkpoint
 from f2depth.eval import campus as campus_eval
 from f2depth.eval import nyu, sevenscenes
-from f2depth.eval.inputs import EvalSample
 from f2depth.flow import load_flow_model
 from f2depth.flow.checkpoint import CheckpointError
 from f2depth.inference import limits

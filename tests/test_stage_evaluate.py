@@ -20,6 +20,7 @@ import pytest
 import torch
 import yaml
 
+from f2depth.data.errors import DataError
 from f2depth.depth import DepthModel, DepthModelConfig, save_checkpoint
 from f2depth.eval.metrics import METRIC_NAMES
 from f2depth.eval.suite import GROUPS
@@ -163,7 +164,7 @@ def test_decoder_upsample_is_applied_and_recorded_with_the_training_weights(tree
 def test_missing_seed_model_names_the_file_and_the_fix(tree):
     write_model(tree / "models" / "depth_full" / "seed0.pt", 0)
     fix = r"depth_full/seed1\.pt: not found; run `dvc repro train_depth@full`"
-    with pytest.raises(SystemExit, match=fix):
+    with pytest.raises(DataError, match=fix):  # run_stage turns it into one line
         run(tree)
 
 

@@ -192,6 +192,6 @@ def test_repository_variants_are_consistent_with_dvc_yaml():
         assert (s.flow_model is None) == (name == "baseline"), name
     stage = yaml.safe_load((root / "dvc.yaml").read_text())["stages"]["train_depth"]
     tracked = {name: v["flow"] or "stages/train_depth.py" for name, v in p["variants"].items()}
-    assert stage["foreach"] == tracked
-    assert "--variant ${key}" in stage["do"]["cmd"] and "${item}" in stage["do"]["deps"]
-    assert {"loss_weights", "variants.${key}"} <= set(stage["do"]["params"])
+    assert {name: item["flow"] for name, item in stage["foreach"].items()} == tracked
+    assert "--variant ${key}" in stage["do"]["cmd"] and "${item.flow}" in stage["do"]["deps"]
+    assert "variants.${key}" in stage["do"]["params"]  # its loss weights: tests/test_dvc_deps.py

@@ -64,8 +64,8 @@ class PrepareConfig:
     crop: int = field(default=16, metadata={"min": 0})
     p2net_cxcy_bug: bool = False
     superpixels: SuperpixelParams = field(default_factory=SuperpixelParams)
-    workers: int = field(default=1, metadata={"min": 0})
-    interpolation: str = "area"  # the shrinking filter of the images (f2depth.data.images.INTERPOLATIONS)
+    workers: int = field(default=2, metadata={"min": 0})
+    interpolation: str = "lanczos"  # the shrinking filter of the images (f2depth.data.images.INTERPOLATIONS)
 
     def __post_init__(self) -> None:
         if self.interpolation not in INTERPOLATIONS:

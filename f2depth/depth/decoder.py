@@ -8,6 +8,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from f2depth.geometry import MAX_DEPTH, MIN_DEPTH
+
 #: Decoder channels per level, fine to coarse (Monodepth2).
 NUM_CH_DEC = (16, 32, 64, 128, 256)
 UPSAMPLE_MODES = ("nearest", "bilinear")
@@ -66,8 +68,8 @@ class DepthDecoder(nn.Module):
         return torch.sigmoid(self.dispconv(self.disp_pad(x)))
 
 
-def disp_to_depth(disp: torch.Tensor, min_depth: float = 0.1,
-                  max_depth: float = 10.0) -> tuple[torch.Tensor, torch.Tensor]:
+def disp_to_depth(disp: torch.Tensor, min_depth: float = MIN_DEPTH,
+                  max_depth: float = MAX_DEPTH) -> tuple[torch.Tensor, torch.Tensor]:
     """Monodepth2's map of the sigmoid output to depth.
 
     disp (B,1,H,W) in [0, 1] → (scaled_disp = 1/max + (1/min − 1/max)·disp, depth = 1/scaled_disp), so
@@ -79,7 +81,8 @@ def disp_to_depth(disp: torch.Tensor, min_depth: float = 0.1,
     return scaled, 1.0 / scaled
 
 
-def sigmoid_input_for_depth(depth: float, min_depth: float = 0.1, max_depth: float = 10.0) -> float:
+def sigmoid_input_for_depth(depth: float, min_depth: float = MIN_DEPTH,
+                            max_depth: float = MAX_DEPTH) -> float:
     """The pre-sigmoid value x whose ``disp_to_depth(sigmoid(x))`` is ``depth`` metres.
 
     Inverse of ``disp_to_depth``: disp = (1/depth − 1/max) / (1/min − 1/max), x = log(disp / (1 − disp)).

@@ -32,7 +32,7 @@ from f2depth.depth.decoder import UPSAMPLE_MODES, DepthDecoder, disp_to_depth, s
 from f2depth.depth.encoder import ResnetEncoder
 from f2depth.depth.pose import PoseDecoder
 from f2depth.depth.resnet import BLOCKS, load_imagenet_resnet
-from f2depth.geometry import invert_pose, pose_from_params
+from f2depth.geometry import MAX_DEPTH, MIN_DEPTH, invert_pose, pose_from_params
 from f2depth.io import load_weights, torch_save
 
 CHECKPOINT_FORMAT = "f2depth.depth"
@@ -45,8 +45,8 @@ class DepthModelConfig:
 
     height: int
     width: int
-    min_depth: float = 0.1
-    max_depth: float = 10.0
+    min_depth: float = MIN_DEPTH
+    max_depth: float = MAX_DEPTH
     num_layers: int = 18
     upsample_mode: str = "nearest"
 

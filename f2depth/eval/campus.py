@@ -12,8 +12,7 @@ Images run one at a time (their sizes differ).
 from __future__ import annotations
 
 from f2depth.data.campus import CampusSet
-from f2depth.eval import published
-from f2depth.eval.protocol import Protocol, Report, SceneRows, SceneTable
+from f2depth.eval.protocol import Protocol, SceneRows
 from f2depth.eval.scoring import Settings
 
 PROTOCOL = Protocol(
@@ -28,14 +27,4 @@ PROTOCOL = Protocol(
     headline="scenes",
     scene_rows=SceneRows("images", "image_mean"),
     max_batch=1,
-    report=Report(
-        column="campus", note="mean of the scene rows",
-        table=SceneTable(
-            stem="campus_scenes", group="campus", metrics=("abs_rel", "rmse", "log10", "a1", "a2", "a3"),
-            summaries=(("Average of scenes", "headline"),),
-            title="Campus Indoor per scene (zero-shot, no PP): F²Depth (ours: full) vs P²Net "
-                  "(ours: baseline)",
-            caption="Zero-shot depth at the laser-measured points of Campus Indoor", label="tab:campus",
-            notes=("With the synthetic Campus stand-in, our scenes are not the paper's scenes No. 1-18.",),
-            published=published.campus_pairs)),
-)  # fmt: skip
+)

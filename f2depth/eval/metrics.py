@@ -20,6 +20,8 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from f2depth.geometry import MAX_DEPTH, MIN_DEPTH
+
 METRIC_NAMES: tuple[str, ...] = ("abs_rel", "sq_rel", "rmse", "rmse_log", "log10", "a1", "a2", "a3")
 """Error metrics first (lower is better), then the three accuracies (higher is better)."""
 
@@ -80,14 +82,14 @@ def median_scale(pred: np.ndarray, gt: np.ndarray) -> tuple[np.ndarray, float]:
     return pred * ratio, ratio
 
 
-def clip_depth(pred: np.ndarray, min_depth: float = 0.1, max_depth: float = 10.0) -> np.ndarray:
+def clip_depth(pred: np.ndarray, min_depth: float = MIN_DEPTH, max_depth: float = MAX_DEPTH) -> np.ndarray:
     """Clip depths to ``[min_depth, max_depth]`` metres (applied after median scaling). Any shape."""
     return np.clip(pred, min_depth, max_depth)
 
 
 def image_metrics(gt: np.ndarray, pred: np.ndarray, mask: np.ndarray | None = None, *,
-                  median_scaling: bool = True, min_depth: float = 0.1,
-                  max_depth: float = 10.0) -> tuple[dict[str, float], float]:
+                  median_scaling: bool = True, min_depth: float = MIN_DEPTH,
+                  max_depth: float = MAX_DEPTH) -> tuple[dict[str, float], float]:
     """Mask → median-scale → clip → metrics for one image.
 
     gt, pred: same shape (H,W) or (N,), metres; mask: bool, same shape, default ``gt > 0``.

@@ -10,8 +10,8 @@ where gt > 0 (P²Net has no cap), median scaling, clip to [0.1, 10] m. Headline:
 from __future__ import annotations
 
 from f2depth.data.nyu_labeled import NYULabeledSet
-from f2depth.eval.inputs import spread
-from f2depth.eval.protocol import Figure, Protocol, Report
+from f2depth.data.samples import spread
+from f2depth.eval.protocol import Figure, Protocol
 from f2depth.eval.scoring import Settings
 
 PROTOCOL = Protocol(
@@ -24,7 +24,7 @@ PROTOCOL = Protocol(
              "min_depth", "max_depth", "max_gt_depth"),
     columns=("index",),
     options={"crop": "nyu_crop"},
-    report=Report(figure=Figure("NYU Depth V2 test images", lambda samples, n: spread(len(samples), n))),
+    figure=Figure("NYU Depth V2 test images", lambda samples, n: spread(len(samples), n)),
 )
 
 evaluate_nyu = PROTOCOL.evaluate  # the training stage's per-epoch validation scores with it

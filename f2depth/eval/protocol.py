@@ -2,24 +2,22 @@
 
 A test set is the ``PROTOCOL`` of its module, listed in ``f2depth.eval.registry``: how its loader opens
 from params, the ``Settings`` it is scored with (``f2depth.eval.scoring``: one recipe for all), and how
-the `evaluate` stage (details.json, per-image CSV, figures) and the `tables` stage (overview columns,
-per-scene table) report it.
+the `evaluate` stage records it (details.json, per-image CSV, figures). How the `tables` stage shows it
+(overview columns, per-scene table, the paper's rows) is ``f2depth.report.layouts``: editing the paper's
+numbers re-runs the tables, never the evaluation or the training.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Collection, Iterable, Mapping
 from dataclasses import dataclass, field, replace
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
-from f2depth.eval.inputs import EvalSample, SampleSet
+from f2depth.data.samples import EvalSample, SampleSet
 from f2depth.eval.metrics import METRIC_NAMES, PredictDisp
 from f2depth.eval.scoring import SETTING_NAMES, ProtocolResult, Settings, score
-
-if TYPE_CHECKING:
-    from f2depth.eval.published import Pair
 
 
 @dataclass(frozen=True)
@@ -42,37 +40,8 @@ class Figure:
 
 
 @dataclass(frozen=True)
-class SceneTable:
-    """A per-scene table in reports/tables: our F²Depth (``full``) beside our P²Net (``baseline``) per
-    scene of headline ``group``, the ``summaries`` rows ((label, ``headline`` | ``scene_mean``): the
-    group's headline or the mean of its scene rows), then the paper's rows from ``published()``."""
-
-    stem: str
-    group: str
-    metrics: tuple[str, ...]
-    summaries: tuple[tuple[str, str], ...]
-    title: str
-    caption: str
-    label: str
-    notes: tuple[str, ...] = ()
-    scene_titles: Mapping[str, str] = field(default_factory=dict)
-    published: Callable[[], list[Pair]] = list  # f2depth.eval.published's rows
-
-
-@dataclass(frozen=True)
-class Report:
-    """What the `tables` stage shows of a test set besides NYU's paper tables: its columns in the variants
-    overview (``column``: their prefix; ``note``: what its headline is), its ``figure`` s, its ``table``."""
-
-    column: str = ""
-    note: str = ""
-    figure: Figure | None = None
-    table: SceneTable | None = None
-
-
-@dataclass(frozen=True)
 class Protocol:
-    """A test set, as the `evaluate` and `tables` stages know it (through ``f2depth.eval.registry``).
+    """A test set, as the `evaluate` stage scores it (through ``f2depth.eval.registry``).
 
     ``name``: registry name (``evaluate.datasets``, headline groups ``<name>`` and ``<name>_pp``,
     ``<name>.csv``); ``title``: display name; ``open(get)``: its loader (a ``SampleSet``), ``get(key)``
@@ -82,7 +51,8 @@ class Protocol:
     field a user sets (NYU: ``crop`` ← ``nyu_crop``); ``headline``: ``images`` (the mean over images) or
     ``scenes`` (the mean of the scene rows); ``scene_rows``: details.json per scene (None: per image only);
     ``nonfinite``: a NaN/inf ground-truth depth is an ``error`` (DataError: loaders mark missing depth with
-    0) or ``missing`` (invalid, one warning line); ``max_batch``: images per forward pass at most.
+    0) or ``missing`` (invalid, one warning line); ``max_batch``: images per forward pass at most;
+    ``figure``: the qualitative figures `evaluate` keeps the predictions for (None: none).
     """
 
     name: str
@@ -97,7 +67,7 @@ class Protocol:
     scene_rows: SceneRows | None = None
     nonfinite: str = "error"
     max_batch: int | None = None
-    report: Report = field(default_factory=Report)
+    figure: Figure | None = None
 
     def __post_init__(self) -> None:
         unknown = sorted(set(self.records) - set(SETTING_NAMES))

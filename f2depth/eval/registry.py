@@ -2,32 +2,32 @@
 
 A line names the set (its ``evaluate.datasets`` entry, the headline groups ``<name>`` and ``<name>_pp``,
 ``reports/eval/<variant>/<name>.csv``), the module whose ``PROTOCOL`` (``f2depth.eval.protocol.Protocol``)
-opens, scores and reports it, and the synthetic dataset that stands in for it (written by ``f2depth.synth``
-below ``synth.root``). Protocol modules are imported only when asked for, so `synth` reads this file
-without depending on them. docs/evaluation.md, "Adding a test set", walks through a new one.
+opens and scores it, and the synthetic dataset that stands in for it (one of ``f2depth.synth.plan.STANDINS``,
+written below ``synth.root``; tests/test_eval_registry.py checks that synth makes it). How the tables show
+the set is its ``f2depth.report.layouts`` entry. docs/evaluation.md, "Adding a test set", walks through a
+new one.
 """
 
 from __future__ import annotations
 
-import importlib
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from types import ModuleType
 
-if TYPE_CHECKING:
-    from f2depth.eval.protocol import Protocol
+from f2depth.eval import campus, nyu, sevenscenes
+from f2depth.eval.protocol import Protocol
 
 
 @dataclass(frozen=True)
 class Entry:
     name: str
-    module: str
+    module: ModuleType
     standin: str
 
 
 ENTRIES: tuple[Entry, ...] = (
-    Entry("nyu", "f2depth.eval.nyu", standin="nyu_labeled"),
-    Entry("sevenscenes", "f2depth.eval.sevenscenes", standin="sevenscenes"),
-    Entry("campus", "f2depth.eval.campus", standin="campus"),
+    Entry("nyu", nyu, standin="nyu_labeled"),
+    Entry("sevenscenes", sevenscenes, standin="sevenscenes"),
+    Entry("campus", campus, standin="campus"),
 )
 NAMES: tuple[str, ...] = tuple(e.name for e in ENTRIES)
 
@@ -37,9 +37,9 @@ def protocol(name: str) -> Protocol:
     entry = next((e for e in ENTRIES if e.name == name), None)
     if entry is None:
         raise ValueError(f"unknown test set {name!r}; f2depth/eval/registry.py has {list(NAMES)}")
-    found = importlib.import_module(entry.module).PROTOCOL
+    found = entry.module.PROTOCOL
     if found.name != name:
-        raise ValueError(f"{entry.module}.PROTOCOL is named {found.name!r}, registered as {name!r}")
+        raise ValueError(f"{entry.module.__name__}.PROTOCOL is named {found.name!r}, registered as {name!r}")
     return found
 
 

@@ -1,7 +1,7 @@
 """The one scoring recipe of every test set, and its result type.
 
 P²Net's ``evaluation/nyuv2_eval_depth.py`` (Monodepth2's ``evaluate_depth.py``), on the
-:class:`~f2depth.eval.inputs.EvalSample` s of a loader, with a test set's :class:`Settings`:
+:class:`~f2depth.data.samples.EvalSample` s of a loader, with a test set's :class:`Settings`:
 
 - dense ground truth (``depth``): crop image and ground truth (``crop``; NYU's Eigen crop), resize the rgb
   to the network size, predict (with flip post-processing when ``post_process``), upsample the disparity
@@ -27,7 +27,8 @@ import torch.nn.functional as F
 from tqdm import tqdm
 
 from f2depth.data.errors import DataError
-from f2depth.eval.inputs import EvalSample, batched, report_skipped, run_batch, to_input
+from f2depth.data.samples import EvalSample
+from f2depth.eval.inputs import batched, report_skipped, run_batch, to_input
 from f2depth.eval.metrics import (
     METRIC_NAMES,
     EmptyMaskError,
@@ -41,6 +42,7 @@ from f2depth.eval.metrics import (
     mean_of_rows,
     stack_per_image,
 )
+from f2depth.geometry import MAX_DEPTH, MIN_DEPTH
 
 if TYPE_CHECKING:
     from f2depth.eval.protocol import Protocol
@@ -82,8 +84,8 @@ class Settings:
     upsample: str = "nearest"
     post_process: bool = False
     median_scaling: bool = True
-    min_depth: float = 0.1
-    max_depth: float = 10.0
+    min_depth: float = MIN_DEPTH
+    max_depth: float = MAX_DEPTH
     min_gt_depth: float = 0.0
     max_gt_depth: float | None = None
 

@@ -12,10 +12,9 @@ unweighted one (see tests/test_eval_published.py); details.json has both (``fram
 
 from __future__ import annotations
 
+from f2depth.data.samples import middle_frames
 from f2depth.data.sevenscenes import SevenScenesSet
-from f2depth.eval import published
-from f2depth.eval.inputs import middle_frames
-from f2depth.eval.protocol import Figure, Protocol, Report, SceneRows, SceneTable
+from f2depth.eval.protocol import Figure, Protocol, SceneRows
 from f2depth.eval.scoring import Settings
 
 PROTOCOL = Protocol(
@@ -29,17 +28,5 @@ PROTOCOL = Protocol(
     columns=("scene", "seq", "frame"),
     scene_rows=SceneRows("frames", "frame_weighted", all_images_row="All frames"),
     nonfinite="missing",
-    report=Report(
-        column="s7", note="mean over all test frames",
-        figure=Figure("7-Scenes test frames (one per scene)", lambda samples, n: middle_frames(samples)),
-        table=SceneTable(
-            stem="sevenscenes_scenes", group="sevenscenes_pp", metrics=("abs_rel", "rmse", "a1", "a2", "a3"),
-            summaries=(("Average (frame-weighted, as the paper)", "headline"),
-                       ("Mean of scene rows", "scene_mean")),
-            title="7-Scenes per scene (zero-shot, + PP): F²Depth (ours: full) vs P²Net (ours: baseline)",
-            caption="Zero-shot depth on the 7-Scenes test sequences, with post-processing",
-            label="tab:sevenscenes",
-            notes=("The paper's Average row equals the frame-weighted mean of its scene rows (official test "
-                   "frame counts); compare it with our frame-weighted row.",),
-            scene_titles=published.SEVENSCENES_TITLES, published=published.sevenscenes_pairs)),
-)  # fmt: skip
+    figure=Figure("7-Scenes test frames (one per scene)", lambda samples, n: middle_frames(samples)),
+)

@@ -23,9 +23,9 @@ import cv2
 import numpy as np
 import torch
 
+from f2depth.data.samples import SampleSet
 from f2depth.depth.decoder import UPSAMPLE_MODES
 from f2depth.eval import registry
-from f2depth.eval.inputs import SampleSet
 from f2depth.eval.metrics import PredictDisp
 from f2depth.eval.protocol import Protocol
 from f2depth.eval.scoring import Kept, Settings
@@ -52,7 +52,7 @@ class SuiteConfig:
     height: int | None = None
     width: int | None = None
     nyu_crop: str = "eigen"
-    interpolation: str = "area"
+    interpolation: str = "lanczos"
     upsample: str = "nearest"
     decoder_upsample: str = "bilinear"  # the depth decoder's ×2 upsampling at test time (P²Net's evaluation)
     batch_size: int = field(default=4, metadata={"min": 1})
@@ -60,8 +60,8 @@ class SuiteConfig:
     datasets: tuple[str, ...] = DATASETS
     timing_height: int = field(default=288, metadata={"min": 32})
     timing_width: int = field(default=384, metadata={"min": 32})
-    timing_repeats: int = field(default=20, metadata={"min": 1})
-    timing_warmup: int = field(default=3, metadata={"min": 0})
+    timing_repeats: int = field(default=10, metadata={"min": 1})
+    timing_warmup: int = field(default=2, metadata={"min": 0})
     figure_images: int = field(default=4, metadata={"min": 0})
     figure_width: int = field(default=320, metadata={"min": 1})
     progress: bool = False
@@ -141,7 +141,7 @@ def evaluate_model(predict: PredictDisp, sets: Mapping[str, SampleSet], cfg: Sui
         if name not in sets:
             raise ValueError(f"test set '{name}' is listed in evaluate.datasets but was not loaded")
         protocol, data = registry.protocol(name), sets[name]
-        figure = protocol.report.figure
+        figure = protocol.figure
         keep = figure.pick(data, cfg.figure_images) if figure is not None and cfg.figure_images else []
         for pp in (False, True):
             r = protocol.evaluate(data, predict, batch_size=cfg.batch_size, device=cfg.device,

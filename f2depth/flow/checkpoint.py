@@ -25,6 +25,7 @@ from typing import Any
 
 import torch
 
+from f2depth.data.errors import DataError
 from f2depth.flow.network import FlowNetwork
 from f2depth.flow.pwclite import PWCLite
 from f2depth.io import load_weights
@@ -39,8 +40,9 @@ _FIX_ARFLOW = ("pass an ARFlow PWC-Lite checkpoint such as Sintel/pwclite_raw.ta
                "(2-frame model), or one of our models/flow_*.pt")
 
 
-class CheckpointError(ValueError):
-    """A checkpoint file is missing, unreadable or does not fit its network; the message names the file."""
+class CheckpointError(DataError):
+    """A checkpoint file is missing, unreadable or does not fit its network; the message names the file.
+    A :class:`~f2depth.data.errors.DataError`, so a stage ends with that one line (``f2depth.stage``)."""
 
 
 def build_network(name: str, **kwargs: Any) -> FlowNetwork:

@@ -62,10 +62,10 @@ class FinetuneConfig:
     batch_size: int = field(default=4, metadata={"min": 1})
     lr: float = field(default=5e-5, metadata={"gt": 0})
     patch_spacing: int = 2
-    w_scales: tuple[float, ...] = (1.0,)  # patch: weight per level, finest first (ARFlow: 1, 1, 1, 1, 0)
-    backward: bool = False            # patch: also the backward term (ARFlow's with_bk)
+    w_scales: tuple[float, ...] = (1.0, 1.0, 1.0, 1.0, 0.0)  # patch: weight per level, finest first (ARFlow)
+    backward: bool = True             # patch: also the backward term (ARFlow's with_bk)
     smooth_weight: float = 50.0       # loss_weights.flow_smooth
-    occlusion: str = "forward_backward"  # the paper's check; "range_map" for a degenerate pretrained flow
+    occlusion: str = "range_map"  # ARFlow's warm-up; "forward_backward": the paper's check
     augment: bool = True
     amp: bool = False                 # autocast the network (CUDA float16, CPU bfloat16)
     weight_decay: float = field(default=1e-6, metadata={"fixed": True})  # ARFlow's

@@ -45,12 +45,12 @@ HISTORY_COLUMNS = ("epoch", "loss", "photometric", "smooth", "flow_mean", "noc_f
 class PretrainConfig:
     """The training keys of the ``flow_pretrain`` section (ranges checked by f2depth.params.section)."""
 
-    height: int = field(default=128, metadata={"min": 1})
-    width: int = field(default=192, metadata={"min": 1})
-    raw_epochs: int = field(default=4, metadata={"min": 0})
-    census_epochs: int = field(default=4, metadata={"min": 0})
+    height: int = field(default=96, metadata={"min": 1})
+    width: int = field(default=128, metadata={"min": 1})
+    raw_epochs: int = field(default=16, metadata={"min": 0})
+    census_epochs: int = field(default=0, metadata={"min": 0})
     batch_size: int = field(default=4, metadata={"min": 1})
-    lr: float = field(default=1e-4, metadata={"gt": 0})
+    lr: float = field(default=4e-4, metadata={"gt": 0})
     weight_decay: float = field(default=1e-6, metadata={"fixed": True})  # ARFlow's, on weights only
     seed: int = 0
     init: str = "msra"   # msra: what ARFlow's init_weights means to do; pytorch: what it does (a no-op)
@@ -68,9 +68,12 @@ class PretrainConfig:
         return SINTEL_RAW if epoch < self.raw_epochs else SINTEL_FT
 
 
-def run_fingerprint(cfg: PretrainConfig, n_pairs: int) -> str:
-    """What a resume file must match: the configuration and the number of training pairs."""
-    return hash_settings({"config": asdict(cfg), "n_pairs": n_pairs})
+def run_fingerprint(cfg: PretrainConfig, pairs: Sequence[SintelPair]) -> str:
+    """What a resume file must match: the configuration and the training pairs, their names and the
+    contents of their images (regenerated frames of the same count start afresh)."""
+    files = {f"{i}.{k}": getattr(pair, k) for i, pair in enumerate(pairs) for k in ("image1", "image2")}
+    names = [(pair.sequence, pair.frame, pair.pass_name) for pair in pairs]
+    return hash_settings({"config": asdict(cfg), "pairs": names}, files)
 
 
 def clear_resume(resume_dir: str | os.PathLike) -> None:
@@ -92,7 +95,7 @@ def pretrain(model: FlowNetwork, pairs: Sequence[SintelPair], cfg: PretrainConfi
     dataset = SintelPairs(pairs, (cfg.height, cfg.width), augment=True)
     loop = EpochLoop("flow_pretrain", cfg.epochs, {"model": model, "optimizer": optim},
                      Path(resume_dir) / "last.pt" if resume_dir is not None else None,
-                     run_fingerprint(cfg, len(pairs)), progress=progress)
+                     run_fingerprint(cfg, pairs), progress=progress)
     if not loop.restore() and cfg.init == "msra":
         msra_init(model, torch.Generator().manual_seed(cfg.seed))
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import torch
 
-from f2depth.geometry import backproject
+from f2depth.geometry import MAX_DEPTH, MIN_DEPTH, backproject
 from f2depth.superpixels import MIN_AREA
 
 RIDGE = 0.01
@@ -59,8 +59,8 @@ def planar_depth(
     K_inv: torch.Tensor,
     segments: torch.Tensor,
     min_area: int = MIN_AREA,
-    min_depth: float = 0.1,
-    max_depth: float = 10.0,
+    min_depth: float = MIN_DEPTH,
+    max_depth: float = MAX_DEPTH,
     ridge: float = RIDGE,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Depth of each pixel's superpixel plane and the mask of pixels in superpixels > min_area pixels.
@@ -84,8 +84,8 @@ def planar_loss(
     K_inv: torch.Tensor,
     segments: torch.Tensor,
     min_area: int = MIN_AREA,
-    min_depth: float = 0.1,
-    max_depth: float = 10.0,
+    min_depth: float = MIN_DEPTH,
+    max_depth: float = MAX_DEPTH,
     ridge: float = RIDGE,
 ) -> torch.Tensor:
     """L_spp = mean_{B,H,W} |D − D^plane|·mask (shapes as ``planar_depth``) → scalar."""

@@ -50,7 +50,7 @@ class PosesConfig:
     min_scene_points: int = field(default=10, metadata={"min": 0})  # ... and this many points
     # a pair is reliable when both frames see this many common points
     min_shared_points: int = field(default=10, metadata={"min": 1})
-    workers: int = field(default=1, metadata={"min": 0})
+    workers: int = field(default=2, metadata={"min": 0})
 
 
 @dataclass(frozen=True)

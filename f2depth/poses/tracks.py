@@ -33,7 +33,7 @@ class TrackerConfig:
     levels: int = 3  # LK pyramid levels above the image
     fb_threshold: float = 0.2  # px, forward–backward distance
     margin: int = 16  # px kept from the border of the valid region
-    detect_every: int = 1  # new corners on every n-th frame (fewer anchors: fewer LK calls)
+    detect_every: int = 5  # new corners on every n-th frame (fewer anchors: fewer LK calls)
 
 
 @dataclass(frozen=True)

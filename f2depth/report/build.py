@@ -23,13 +23,13 @@ def _same_images(a: VariantResults, b: VariantResults, prefix: str) -> bool:
 def write_figures(results: Mapping[str, VariantResults], depth_histories: Mapping[str, Mapping],
                   flow_histories: Mapping[str, Mapping], out_dir: str | os.PathLike) -> list[Path]:
     """Qualitative grids and AbsRel error maps (RGB, baseline, full, GT; the first seed, no PP) for every
-    test set with figures (``Protocol.report.figure``: NYU, 7-Scenes), and the training curves. Returns the
+    test set with figures (``Protocol.figure``: NYU, 7-Scenes), and the training curves. Returns the
     files written."""
     out = Path(out_dir)
     written: list[Path] = []
     ours, base = results.get(OURS), results.get(P2NET)
     for protocol in registry.protocols():
-        prefix, figure = protocol.name, protocol.report.figure
+        prefix, figure = protocol.name, protocol.figure
         if figure is None or ours is None or f"{prefix}_pred" not in ours.kept:
             continue
         title = figure.title

@@ -17,6 +17,7 @@ from matplotlib.colors import Colormap
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
+from f2depth.geometry import MAX_DEPTH, MIN_DEPTH
 from f2depth.io import atomic_path
 
 DEPTH_CMAP = "magma_r"  # near = bright
@@ -36,10 +37,11 @@ def _save(fig: Figure, path: str | os.PathLike, dpi: int = 100) -> None:
 
 
 def row_range(gt: np.ndarray) -> tuple[float, float]:
-    """Colour range (m) of one row: 1st-99th percentile of gt's valid (> 0) pixels; (0.1, 10) if none."""
+    """Colour range (m) of one row: 1st-99th percentile of gt's valid (> 0) pixels; the depth range
+    (``f2depth.geometry.MIN_DEPTH``, ``MAX_DEPTH``) if none."""
     valid = gt[gt > 0]
     if valid.size == 0:
-        return 0.1, 10.0
+        return MIN_DEPTH, MAX_DEPTH
     lo, hi = np.percentile(valid, [1, 99])
     return float(lo), float(max(hi, lo + 1e-3))
 

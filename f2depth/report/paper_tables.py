@@ -1,10 +1,10 @@
 """The paper's tables with our numbers beside the published ones.
 
-Each builder returns a :class:`Table` (rows and columns for ``f2depth.eval.tables.write_table``). Our
+Each builder returns a :class:`Table` (rows and columns for ``f2depth.report.tables.write_table``). Our
 cells are per-seed lists (rendered ``mean ± std``, with the seed count in the ``n`` column); the
-paper's rows (``f2depth.eval.published``) carry ``quoted: True`` and get the † marker. Tables 1, 5 and 6
+paper's rows (``f2depth.report.published``) carry ``quoted: True`` and get the † marker. Tables 1, 5 and 6
 are NYU's; the other test sets of ``f2depth.eval.registry`` bring their per-scene table
-(``Protocol.report.table``) and their columns of the variants overview.
+(``f2depth.report.layouts``) and their columns of the variants overview.
 
 Variant roles: ``full`` = F²Depth, ``baseline`` = our P²Net (no flow losses), ``no_feature`` = + L_rigid
 only, ``flow_pretrained`` / ``flow_full_ft`` = flow network not fine-tuned / fine-tuned on all pixels.
@@ -18,12 +18,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from f2depth.eval import published, registry
+from f2depth.eval import registry
 from f2depth.eval.metrics import METRIC_NAMES
 from f2depth.eval.protocol import Protocol
-from f2depth.eval.tables import RULE, Column, metric_columns, to_markdown, write_table
 from f2depth.io import write_text
+from f2depth.report import published
+from f2depth.report.layouts import layout
 from f2depth.report.results import VariantResults
+from f2depth.report.tables import RULE, Column, metric_columns, to_markdown, write_table
 
 PAPER_NYU = ("abs_rel", "rmse", "log10", "a1", "a2", "a3")
 OURS, P2NET = "full", "baseline"
@@ -146,9 +148,9 @@ def _pair_columns(names: Sequence[str], first: str, second: str, count: str) -> 
 
 
 def scene_table(results: Mapping[str, VariantResults], protocol: Protocol) -> Table | None:
-    """A test set's per-scene table (its ``report.table``; the paper's 7-Scenes table, Campus Tables 3 and
-    4): ours (full) beside our P²Net (baseline) per scene, the summary rows, then the paper's rows."""
-    spec, a, b = protocol.report.table, results.get(OURS), results.get(P2NET)
+    """A test set's per-scene table (its layout's ``table``; the paper's 7-Scenes table, Campus Tables 3
+    and 4): ours (full) beside our P²Net (baseline) per scene, the summary rows, then the paper's rows."""
+    spec, a, b = layout(protocol.name).table, results.get(OURS), results.get(P2NET)
     if spec is None or a is None or not a.scenes(spec.group):
         return None
     count, group = protocol.scene_rows.count, spec.group
@@ -202,17 +204,18 @@ def overview_table(results: Mapping[str, VariantResults]) -> Table:
         for pp in (False, True):
             s = "_pp" if pp else ""
             rows.append({"variant": name, "post_process": pp, **_ours(r, f"nyu{s}", METRIC_NAMES),
-                         **{f"{p.report.column}_{m}": r.values(f"{p.name}{s}", m) for p in others
+                         **{f"{layout(p.name).column}_{m}": r.values(f"{p.name}{s}", m) for p in others
                             for m in ("abs_rel", "a1")}})  # fmt: skip
     cols = [Column("variant", "Variant"), Column("post_process", "PP", align="c"), *metric_columns()]
     for p in others:
-        cols += [Column(f"{p.report.column}_abs_rel", f"{p.title} AbsRel↓"),
-                 Column(f"{p.report.column}_a1", f"{p.title} δ<1.25↑")]
+        column = layout(p.name).column
+        cols += [Column(f"{column}_abs_rel", f"{p.title} AbsRel↓"),
+                 Column(f"{column}_a1", f"{p.title} δ<1.25↑")]
     titles = [p.title for p in others]
     names = ", ".join(titles[:-1]) + f" and {titles[-1]}" if len(titles) > 1 else "".join(titles)
     return Table("variants_overview", rows, [*cols, N_COLUMN], f"All variants: NYU (8 metrics), {names}",
                  f"Every ablation variant on the {NUMBERS[len(others) + 1]} test sets", "tab:variants",
-                 ["; ".join(f"{p.title}: {p.report.note}" for p in others) + "."])
+                 ["; ".join(f"{p.title}: {layout(p.name).note}" for p in others) + "."])
 
 
 def build_tables(results: Mapping[str, VariantResults], epe: EPE) -> list[Table]:

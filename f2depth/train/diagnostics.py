@@ -30,7 +30,7 @@ from torch import nn
 from f2depth.data.images import to_tensor
 from f2depth.data.prepared import PreparedSet
 from f2depth.eval.metrics import EmptyMaskError, aggregate, image_metrics
-from f2depth.geometry import relative_pose
+from f2depth.geometry import MAX_DEPTH, MIN_DEPTH, relative_pose
 from f2depth.poses.store import PosePriors
 from f2depth.train.step import pose_priors
 from f2depth.train.validate import evaluating
@@ -112,8 +112,8 @@ def pose_errors(T_pred: torch.Tensor, T_true: torch.Tensor) -> dict[str, float]:
     }
 
 
-def depth_accuracy(pred: np.ndarray, gt: np.ndarray, min_depth: float = 0.1,
-                   max_depth: float = 10.0) -> dict[str, float]:
+def depth_accuracy(pred: np.ndarray, gt: np.ndarray, min_depth: float = MIN_DEPTH,
+                   max_depth: float = MAX_DEPTH) -> dict[str, float]:
     """pred, gt (N,H,W) metres → mean over images of median-scaled δ1 and AbsRel (images without valid
     ground truth are left out; NaN when none has any)."""
     per_image = []

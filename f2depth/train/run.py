@@ -5,7 +5,7 @@ Outputs (``out_dir`` = ``models/depth_<variant>``): ``seed<k>.pt`` per seed (``f
 checkpoints) and ``model.pt``, the **first listed seed's** model (a hard link, or a copy) — the model
 the ``evaluate`` stage uses for single-model results, unchanged when seeds are appended to the list.
 ``history_file``: the first seed's per-epoch rows (DVC plots); every seed's rows go to its own MLflow
-run. Resume states live in ``<checkpoint_dir>/<variant>/seed<k>.pt``; they are deleted when every seed of
+run. Resume states live in ``<resume_dir>/<variant>/seed<k>.pt``; they are deleted when every seed of
 the variant has finished, so a run killed during a later seed does not retrain the earlier ones.
 """
 
@@ -42,7 +42,7 @@ log = logging.getLogger(__name__)
 
 def run_fingerprint(s: TrainSettings, seed: int) -> str:
     """What a resumable state must match: the settings that shape training and the input files."""
-    ignored = ("seeds", "workers", "checkpoint_dir", "device", "diagnostic_tuples", "val_every")
+    ignored = ("seeds", "workers", "resume_dir", "device", "diagnostic_tuples", "val_every")
     settings = {k: v for k, v in s.as_dict().items() if k not in ignored}
     settings["seed"] = seed
     files = {"tuples": Path(s.prepared) / "tuples.csv", "camera": Path(s.prepared) / "camera.json",
@@ -123,7 +123,7 @@ def train_variant(
                 model.load_imagenet(s.imagenet_weights)
             if s.init_depth is not None:
                 model.set_initial_depth(s.init_depth)
-            state_file = Path(s.checkpoint_dir) / s.variant / f"seed{seed}.pt"
+            state_file = Path(s.resume_dir) / s.variant / f"seed{seed}.pt"
             run_ctx = (tracking.stage_run("train_depth", params or {}, variant=s.variant)
                        if ctx.is_main else contextlib.nullcontext(tracking.StageRun()))
             with run_ctx as run:
@@ -169,7 +169,7 @@ def train_variant(
     }  # fmt: skip
     if ctx.is_main:
         for seed in s.seeds:
-            clear_state(Path(s.checkpoint_dir) / s.variant / f"seed{seed}.pt")
+            clear_state(Path(s.resume_dir) / s.variant / f"seed{seed}.pt")
         write_history(history_file, main_history, HISTORY_COLUMNS)
         write_json(metrics_file, metrics)
         if validator is not None:

@@ -57,7 +57,7 @@ class TrainSettings:
     val_every: int = field(metadata={"min": 1})
     diagnostic_tuples: int = field(metadata={"min": 0})
     sync_bn: bool
-    checkpoint_dir: str
+    resume_dir: str
     # ---- resolved for the variant
     variant: str
     flow_model: str | None  # variants.<name>.flow

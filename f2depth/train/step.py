@@ -33,7 +33,7 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
-from f2depth.geometry import invert_pose, rigid_flow
+from f2depth.geometry import MAX_DEPTH, MIN_DEPTH, invert_pose, rigid_flow
 from f2depth.losses import (
     NonFiniteLossError,
     edge_aware_smoothness,
@@ -58,8 +58,8 @@ FLOW_TERMS = ("rigid", "feature")
 class StepConfig:
     weights: Mapping[str, float]  # term → weight, every name of TERMS (f2depth.train.settings.loss_weights)
     min_area: float  # superpixels of more pixels take part in L_spp
-    min_depth: float = 0.1
-    max_depth: float = 10.0
+    min_depth: float = MIN_DEPTH
+    max_depth: float = MAX_DEPTH
     amp: bool = False  # autocast the networks: float16 on CUDA, bfloat16 on a CPU
 
 

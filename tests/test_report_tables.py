@@ -1,4 +1,4 @@
-"""Tests for f2depth.eval.tables: Markdown, CSV round trip, LaTeX structure, seeds and quoted rows."""
+"""Tests for f2depth.report.tables: Markdown, CSV round trip, LaTeX structure, seeds and quoted rows."""
 
 from __future__ import annotations
 
@@ -10,8 +10,8 @@ import re
 import numpy as np
 import pytest
 
-from f2depth.eval import published
-from f2depth.eval import tables as T
+from f2depth.report import published
+from f2depth.report import tables as T
 
 COLUMNS = [T.Column("method", "Method"), T.Column("pp", "PP"), *T.metric_columns(("abs_rel", "rmse", "a1"))]
 ROWS = [

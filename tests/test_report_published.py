@@ -1,11 +1,11 @@
-"""Tests for f2depth.eval.published: the paper's headline numbers and the tables' internal consistency."""
+"""Tests for f2depth.report.published: the paper's headline numbers and the tables' internal consistency."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from f2depth.eval import published as P
+from f2depth.report import published as P
 
 #: frames in the official 7-Scenes test sequences (TestSplit.txt) per scene; 17,000 in all (the paper §4.1)
 TEST_FRAMES = {"chess": 2000, "fire": 2000, "heads": 1000, "office": 4000, "pumpkin": 2000,
