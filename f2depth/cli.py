@@ -303,9 +303,9 @@ def _cmd_ingest(args: argparse.Namespace) -> int:
 
 
 def _cmd_export(args: argparse.Namespace) -> int:
+    from f2depth.data.writable import check_output_file
     from f2depth.inference.backends import load_depth_model
     from f2depth.inference.export import export_onnx
-    from f2depth.inference.outputs import check_output_file
 
     check_output_file(args.output)
     model = load_depth_model(args.model, "cpu")
@@ -324,8 +324,8 @@ def _cmd_export(args: argparse.Namespace) -> int:
 
 
 def _cmd_reconstruct(args: argparse.Namespace) -> int:
+    from f2depth.data.writable import check_output_file
     from f2depth.inference.backends import load_backend
-    from f2depth.inference.outputs import check_output_file
     from f2depth.inference.predict import Predictor
     from f2depth.inference.reconstruct import ReconstructSettings, TSDFSettings, reconstruct
     from f2depth.inference.sequences import sevenscenes_sequence, synth_sequence

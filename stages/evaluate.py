@@ -82,14 +82,15 @@ def main(argv: list[str]) -> None:
                         "(train_depth.seeds lists the seeds to evaluate)")
     if stage.threads:
         torch.set_num_threads(stage.threads)
+    # every seed's model before any work: a file that does not fit ends the stage before minutes of scoring
+    models = [load_checkpoint(f, cfg.device, decoder_upsample=cfg.decoder_upsample).eval() for f in files]
     sets = load_sets(p, cfg.datasets, stage.max_images)
     out_dir = Path(args.reports) / args.variant
     t0 = time.perf_counter()
     headlines, details, rows, kept = [], {}, {}, None
     with tracking.stage_run("evaluate", p, variant=args.variant, sections=("evaluate",)) as run:
         run.set_tags({"seeds": seeds})
-        for seed, path in zip(seeds, files):
-            model = load_checkpoint(path, cfg.device, decoder_upsample=cfg.decoder_upsample).eval()
+        for seed, model in zip(seeds, models):
             net_hw = (model.config.height, model.config.width)
             with torch.no_grad():
                 r = evaluate_model(model_disparity(model), sets, cfg, net_hw)

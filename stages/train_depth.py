@@ -5,8 +5,11 @@ Usage: python stages/train_depth.py --variant NAME [--params params.yaml] [--no-
 
 Reads `train_depth`, `loss_weights`, `data.*` and `variants.NAME` (its flow model and the loss terms it
 switches off). Writes models/depth_NAME/{seed<k>.pt, model.pt (= the first seed's)},
-metrics/train_depth/NAME.json and metrics/train_depth/NAME/history.csv. A killed run resumes from its
-last epoch checkpoint unless --no-resume is given. With ground truth in the prepared set (the
+metrics/train_depth/NAME.json and metrics/train_depth/NAME/history.csv. The models folder is built aside and
+replaces the old one only when every seed is trained; the resume states (train_depth.resume_dir) are
+removed only after every output is written, so a killed run — or one whose metrics could not be written —
+resumes from its last epoch checkpoint unless --no-resume is given. Every output location is checked to
+be writable before any work. With ground truth in the prepared set (the
 synthetic default) every epoch also logs depth accuracy and pose errors on the training tuples
 (f2depth.train.diagnostics).
 """
@@ -14,16 +17,21 @@ synthetic default) every epoch also logs depth accuracy and pose errors on the t
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
 import sys
 from pathlib import Path
 
 from f2depth import params as P
-from f2depth.losses import NonFiniteLossError
+from f2depth import tracking
+from f2depth.data.writable import check_output_folder
+from f2depth.epochs import clear_state, write_history
+from f2depth.io import atomic_dir, write_json
 from f2depth.numbers import format_number as fmt
 from f2depth.stage import run_stage
 from f2depth.train.distributed import cleanup, init_from_env
-from f2depth.train.run import train_variant
+from f2depth.train.loop import HISTORY_COLUMNS
+from f2depth.train.run import resume_states, train_variant
 from f2depth.train.settings import settings_from_params
 
 
@@ -39,29 +47,38 @@ def main(argv: list[str]) -> None:
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     params = P.load(args.params)
     settings = settings_from_params(params, args.variant)
+    out_dir = Path(args.models) / f"depth_{args.variant}"
+    metrics_file = Path(args.metrics) / f"{args.variant}.json"
+    history_file = Path(args.metrics) / args.variant / "history.csv"
     ctx = init_from_env(settings.device)
-    metrics_dir = Path(args.metrics)
     try:
-        m = train_variant(
-            settings, out_dir=Path(args.models) / f"depth_{args.variant}",
-            metrics_file=metrics_dir / f"{args.variant}.json",
-            history_file=metrics_dir / args.variant / "history.csv",
-            ctx=ctx, params=params, resume=args.resume,
-        )  # fmt: skip
-    except NonFiniteLossError as exc:
-        sys.exit(f"train_depth[{args.variant}]: {exc}")
+        if ctx.is_main:  # before any work: every output location must take files
+            for folder, option in ((out_dir.parent, "--models"), (metrics_file.parent, "--metrics"),
+                                   (history_file.parent, "--metrics"),
+                                   (Path(settings.resume_dir), "train_depth.resume_dir")):
+                check_output_folder(folder, option)
+
+        def open_run(seed: int) -> contextlib.AbstractContextManager[tracking.StageRun]:
+            return tracking.stage_run("train_depth", params, variant=args.variant)
+
+        with atomic_dir(out_dir) if ctx.is_main else contextlib.nullcontext(out_dir) as build_dir:
+            result = train_variant(settings, build_dir, ctx=ctx, open_run=open_run, resume=args.resume)
+        if ctx.is_main:
+            write_history(history_file, result.history, HISTORY_COLUMNS)
+            write_json(metrics_file, result.metrics)
+            for state in resume_states(settings):  # only now: every output is written
+                clear_state(state)
     finally:
         cleanup(ctx)
     if ctx.is_main:
+        m = result.metrics
         floor = m["val_constant_depth"]["a1"]
         tr0, tr1 = m["train_untrained"].get("train_a1"), m["train_trained"].get("train_a1")
         print(f"train_depth[{args.variant}]: val δ1 {m['val_untrained']['a1']:.3f} untrained → "
               f"{m['val_trained']['a1']:.3f} trained (constant depth: {fmt(floor)}), AbsRel "
               f"{m['val_untrained']['abs_rel']:.3f} → {m['val_trained']['abs_rel']:.3f}; training frames δ1 "
               f"{fmt(tr0)} → {fmt(tr1)}; {m['seconds_per_epoch']:.1f} s/epoch, "
-              f"{m['wall_seconds']:.0f} s ({len(settings.seeds)} seed(s)) → "
-              f"{args.models}/depth_{args.variant}")
-
+              f"{m['wall_seconds']:.0f} s ({len(settings.seeds)} seed(s)) → {out_dir}")
 
 
 if __name__ == "__main__":

@@ -5,6 +5,7 @@ from __future__ import annotations
 import pytest
 import torch
 
+from f2depth.data.errors import CheckpointError
 from f2depth.depth import (
     DepthModel,
     DepthModelConfig,
@@ -169,9 +170,9 @@ def test_checkpoint_errors(tmp_path, model):
     for name, (bad, msg) in cases.items():
         p = tmp_path / f"{name}.pt"
         torch.save(bad, p)
-        with pytest.raises(ValueError, match=msg):
+        with pytest.raises(CheckpointError, match=msg):  # a DataError: one line in a stage
             load_checkpoint(p)
-    with pytest.raises(FileNotFoundError, match="train_depth"):
+    with pytest.raises(CheckpointError, match="train_depth"):
         load_checkpoint(tmp_path / "missing.pt")
     with pytest.raises(ValueError, match="clash"):
         save_checkpoint(tmp_path / "x.pt", model, format="other")

@@ -20,6 +20,7 @@ import train_fakes
 
 from f2depth import params as P
 from f2depth.cli import main
+from f2depth.data import writable as writable_mod
 from f2depth.data.errors import DataError
 from f2depth.data.images import MAX_PIXELS, header_hw, read_image
 from f2depth.data.samples import EvalSample
@@ -29,7 +30,6 @@ from f2depth.eval import nyu, sevenscenes
 from f2depth.flow import load_flow_model
 from f2depth.flow.checkpoint import CheckpointError
 from f2depth.inference import limits
-from f2depth.inference import outputs as outputs_mod
 from f2depth.inference.backends import TorchBackend
 from f2depth.inference.predict import Predictor, PredictSettings, run_predict
 from f2depth.inference.sequences import read_gt_npz
@@ -375,7 +375,7 @@ def test_output_folder_is_checked_before_inference(ckpt, images, tmp_path, capfd
     def refuse(*args, dir=None, **kwargs):  # what mkstemp does in a folder without write permission
         raise PermissionError(13, "Permission denied", str(Path(dir) / ".f2depth-write-test.x"))
 
-    monkeypatch.setattr(outputs_mod.tempfile, "mkstemp", refuse)
+    monkeypatch.setattr(writable_mod.tempfile, "mkstemp", refuse)
     predicted = []
     monkeypatch.setattr(Predictor, "predict", lambda self, *a, **k: predicted.append(1))
     code = main(["predict", "--model", str(ckpt), "--input", str(images), "--output", str(locked)])
@@ -401,5 +401,5 @@ def test_missing_flow_model_names_the_variant_key(tmp_path):
     settings = settings_from_params(params, "full")
     with pytest.raises(DataError, match=r"flow_patch\.pt: flow model not found \(variants\.full\."
                                         r"flow\); `dvc repro train_depth@full` builds it first"):
-        train_variant(settings, tmp_path / "out", tmp_path / "m.json", tmp_path / "h.csv", progress=False)
+        train_variant(settings, tmp_path / "out", progress=False)
     assert not (tmp_path / "out").exists()

@@ -168,6 +168,26 @@ def test_missing_seed_model_names_the_file_and_the_fix(tree):
         run(tree)
 
 
+def test_a_depth_model_that_does_not_fit_ends_the_stage_with_one_line(tree, capsys):
+    from f2depth.stage import run_stage
+
+    write_model(tree / "models" / "depth_full" / "seed0.pt", 0)
+    bad = tree / "models" / "depth_full" / "seed1.pt"  # a wider first convolution than DepthCNN's
+    model = DepthModel(DepthModelConfig(*NET_HW))
+    state = {**model.state_dict(), "depth_encoder.conv1.weight": torch.zeros(64, 4, 7, 7)}
+    torch.save({**torch.load(tree / "models" / "depth_full" / "seed0.pt", weights_only=True),
+                "state_dict": state}, bad)
+    argv = ["evaluate.py", "--variant", "full", "--params", str(tree / "params.yaml"), "--models",
+            str(tree / "models"), "--metrics", str(tree / "metrics"), "--reports", str(tree / "reports")]
+    with pytest.raises(SystemExit) as exit_:
+        run_stage("evaluate", load_stage().main, argv)
+    assert exit_.value.code == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1, err
+    assert err.startswith(f"evaluate: {bad}: state_dict does not fit DepthModel(") and "retrain" in err, err
+    assert not (tree / "metrics" / "full.json").exists()  # nothing written that looks valid
+
+
 def test_unknown_variant(tree):
     with pytest.raises(ValueError, match="no variant 'nope' under `variants`"):
         run(tree, "nope")

@@ -174,7 +174,7 @@ def test_training_with_geometric_priors_runs_and_reports_the_poses_it_uses(tiny)
     p["data"]["poses"] = str(root / "poses")
     s = settings_from_params(p, "baseline")
     assert (s.pose_prior, s.poses) == ("geometric", str(root / "poses"))
-    m = train_variant(s, root / "models", root / "m.json", root / "h.csv", params=p, progress=False)
+    m = train_variant(s, root / "models", progress=False).metrics
     assert math.isfinite(m["val_trained"]["a1"]) and math.isfinite(m["train_trained"]["pose_rot_err"])
 
 

@@ -21,3 +21,8 @@ class DataError(ValueError):
         else:
             message = f"{self.path}: {problem}" + (f"; {fix}" if fix else "")
         super().__init__(message)
+
+
+class CheckpointError(DataError):
+    """A model file (flow or depth) is missing, unreadable or does not fit its network; the message names the
+    file and the fix. A :class:`DataError`, so a stage ends with that one line (``f2depth.stage``)."""

@@ -28,6 +28,7 @@ from typing import Any
 import torch
 from torch import nn
 
+from f2depth.data.errors import CheckpointError
 from f2depth.depth.decoder import UPSAMPLE_MODES, DepthDecoder, disp_to_depth, sigmoid_input_for_depth
 from f2depth.depth.encoder import ResnetEncoder
 from f2depth.depth.pose import PoseDecoder
@@ -181,53 +182,59 @@ def save_checkpoint(path: str | os.PathLike, model: DepthModel, params: dict[str
 
 
 def read_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
-    """Load and validate a depth checkpoint dict (format, version, keys); tensors on CPU. Every problem is
-    a ValueError whose one line starts with the path (FileNotFoundError when it does not exist)."""
+    """Load and validate a depth checkpoint dict (format, version, keys); tensors on CPU. Every problem,
+    a missing file included, is a :class:`~f2depth.data.errors.CheckpointError` whose one line starts with
+    the path and ends with the fix."""
     path = Path(path)
     if path.is_dir():
         inside = sorted(p.name for p in path.glob("*.pt"))[:4]
         hint = f"give a checkpoint file in it ({', '.join(inside)})" if inside else "give a checkpoint file"
-        raise ValueError(f"{path}: is a directory, not a depth checkpoint; {hint}")
+        raise CheckpointError(f"{path}: is a directory, not a depth checkpoint; {hint}")
     if not path.is_file():
-        raise FileNotFoundError(f"{path}: depth checkpoint not found; run `dvc repro train_depth` first")
-    ckpt = load_weights(path, "an f2depth checkpoint",
-                        "give a model written by f2depth (models/depth_<variant>/model.pt)")
+        raise CheckpointError(f"{path}: depth checkpoint not found; run `dvc repro train_depth` first")
+    try:
+        ckpt = load_weights(path, "an f2depth checkpoint",
+                            "give a model written by f2depth (models/depth_<variant>/model.pt)")
+    except ValueError as exc:
+        raise CheckpointError(str(exc)) from exc
     if not isinstance(ckpt, dict):
-        raise ValueError(f"{path}: expected a checkpoint dict, got {type(ckpt).__name__}")
+        raise CheckpointError(f"{path}: expected a checkpoint dict, got {type(ckpt).__name__}")
     fmt = ckpt.get("format")
     if fmt != CHECKPOINT_FORMAT:
-        raise ValueError(f"{path}: format {fmt!r} is not {CHECKPOINT_FORMAT!r}; this is not a "
+        raise CheckpointError(f"{path}: format {fmt!r} is not {CHECKPOINT_FORMAT!r}; this is not a "
                          f"DepthCNN/PoseCNN checkpoint (flow models are 'f2depth.flow')")
     version = ckpt.get("version")
     if version != CHECKPOINT_VERSION:
-        raise ValueError(f"{path}: checkpoint version {version!r} is not supported (expected "
+        raise CheckpointError(f"{path}: checkpoint version {version!r} is not supported (expected "
                          f"{CHECKPOINT_VERSION}); retrain with this version of f2depth")
     missing = [k for k in ("state_dict", "config", "params") if k not in ckpt]
     if missing:
-        raise ValueError(f"{path}: checkpoint lacks {missing}; the file is incomplete, retrain or re-save it")
+        raise CheckpointError(f"{path}: checkpoint lacks {missing}; the file is incomplete, retrain or "
+                              "re-save it")
     return ckpt
 
 
 def _checkpoint_config(path: str | os.PathLike, config: Any) -> DepthModelConfig:
-    """The checkpoint's ``config`` entry as a DepthModelConfig; any problem → ValueError naming the file."""
+    """The checkpoint's ``config`` entry as a DepthModelConfig; any problem → CheckpointError naming the
+    file."""
     if not isinstance(config, dict):
-        raise ValueError(f"{path}: config is a {type(config).__name__}, not a dict of DepthModelConfig "
+        raise CheckpointError(f"{path}: config is a {type(config).__name__}, not a dict of DepthModelConfig "
                          "fields; the file is damaged, retrain or re-save it")
     try:
         return DepthModelConfig.from_dict(config, source=f"{path}: config")
     except ValueError as exc:
         text = str(exc)
-        raise ValueError(text if text.startswith(f"{path}:") else f"{path}: config: {text}") from None
+        raise CheckpointError(text if text.startswith(f"{path}:") else f"{path}: config: {text}") from None
 
 
 def _check_finite(path: str | os.PathLike, state: dict[str, torch.Tensor]) -> None:
-    """ValueError naming the file, the count and the first tensor when any floating weight is NaN or ±inf
+    """CheckpointError naming the file, the count and the first tensor when any floating weight is NaN or ±inf
     (a diverged training saves such weights, and they predict NaN depth everywhere)."""
     bad = {k: int((~torch.isfinite(v)).sum()) for k, v in state.items() if v.is_floating_point()}
     bad = {k: n for k, n in bad.items() if n}
     if bad:
         first = next(iter(bad))
-        raise ValueError(f"{path}: {sum(bad.values())} non-finite weight(s) (NaN or inf) in {len(bad)} "
+        raise CheckpointError(f"{path}: {sum(bad.values())} non-finite weight(s) (NaN or inf) in {len(bad)} "
                          f"tensor(s), first {first}; the model is broken (a diverged training?): retrain "
                          "it or use another checkpoint")
 
@@ -247,15 +254,17 @@ def load_checkpoint(path: str | os.PathLike, map_location: str | torch.device = 
         config = dataclasses.replace(config, upsample_mode=decoder_upsample)
     state = ckpt["state_dict"]
     if not isinstance(state, dict) or not all(isinstance(v, torch.Tensor) for v in state.values()):
-        raise ValueError(f"{path}: state_dict is not a dict of tensors; the file is damaged, retrain or "
+        raise CheckpointError(f"{path}: state_dict is not a dict of tensors; the file is damaged, retrain or "
                          "re-save it")
     _check_finite(path, state)
     model = DepthModel(config)
     try:
         result = model.load_state_dict(state, strict=False)
     except RuntimeError as exc:  # shape mismatches
-        raise ValueError(f"{path}: state_dict does not fit DepthModel({config}): {exc}") from exc
+        first = " ".join(str(exc).split())[:200]  # torch lists every mismatching tensor on its own line
+        raise CheckpointError(f"{path}: state_dict does not fit DepthModel({config}): {first}; retrain it "
+                              "or give the model it was trained as") from exc
     if result.missing_keys or result.unexpected_keys:
-        raise ValueError(f"{path}: state_dict does not match DepthModel({config}): missing "
+        raise CheckpointError(f"{path}: state_dict does not match DepthModel({config}): missing "
                          f"{result.missing_keys[:5]}, unexpected {result.unexpected_keys[:5]}")
     return model.to(map_location)

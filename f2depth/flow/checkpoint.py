@@ -25,7 +25,7 @@ from typing import Any
 
 import torch
 
-from f2depth.data.errors import DataError
+from f2depth.data.errors import CheckpointError
 from f2depth.flow.network import FlowNetwork
 from f2depth.flow.pwclite import PWCLite
 from f2depth.io import load_weights
@@ -38,11 +38,6 @@ VERSION = 2
 LEGACY = ("f2depth.pwclite", 1)  # PWC-Lite checkpoints written before the network was recorded
 _FIX_ARFLOW = ("pass an ARFlow PWC-Lite checkpoint such as Sintel/pwclite_raw.tar or pwclite_ar.tar "
                "(2-frame model), or one of our models/flow_*.pt")
-
-
-class CheckpointError(DataError):
-    """A checkpoint file is missing, unreadable or does not fit its network; the message names the file.
-    A :class:`~f2depth.data.errors.DataError`, so a stage ends with that one line (``f2depth.stage``)."""
 
 
 def build_network(name: str, **kwargs: Any) -> FlowNetwork:

@@ -8,14 +8,13 @@ depth (B,1,h,w) in the network's nominal metres (``[min_depth, max_depth]``, rel
 from __future__ import annotations
 
 import os
-import struct
 from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
 import torch
 
-from f2depth.data.errors import DataError
+from f2depth.data.errors import CheckpointError, DataError
 from f2depth.depth import DepthModel, load_checkpoint
 from f2depth.inference.optional import require
 from f2depth.params import resolve_device
@@ -43,18 +42,13 @@ MAX_MESSAGE = 300
 
 
 def load_depth_model(path: str | os.PathLike, device: str = "cpu") -> DepthModel:
-    """A DepthModel from a ``f2depth.depth`` checkpoint in eval mode; any problem → DataError (its
-    message, which starts with the path, cut to ``MAX_MESSAGE`` characters: torch's own are long)."""
+    """A DepthModel from a ``f2depth.depth`` checkpoint in eval mode; any problem → CheckpointError (a
+    DataError; its message, which starts with the path, cut to ``MAX_MESSAGE`` characters)."""
     try:
-        model = load_checkpoint(path, map_location=device)
-    except (FileNotFoundError, ValueError) as exc:  # missing; wrong format, version, keys or shapes
+        return load_checkpoint(path, map_location=device).eval()
+    except CheckpointError as exc:  # missing; unreadable; wrong format, version, keys or shapes
         text = " ".join(str(exc).split())
-    except (EOFError, struct.error) as exc:  # torch.load on short or foreign files (read_checkpoint
-        # passes these through)
-        text = f"{path}: not a readable torch checkpoint ({type(exc).__name__}: {exc})"
-    else:
-        return model.eval()
-    raise DataError(text if len(text) <= MAX_MESSAGE else text[: MAX_MESSAGE - 1] + "…")
+        raise CheckpointError(text if len(text) <= MAX_MESSAGE else text[: MAX_MESSAGE - 1] + "…") from None
 
 
 class TorchBackend:

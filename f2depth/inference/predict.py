@@ -20,10 +20,11 @@ import torch
 from tqdm import tqdm
 
 from f2depth.data.errors import DataError
+from f2depth.data.writable import check_output_folder
 from f2depth.eval.inputs import batched, to_input
 from f2depth.eval.metrics import depth_from_disparity, predict_disparity, resize_disparity
 from f2depth.inference.backends import DepthBackend
-from f2depth.inference.outputs import SUFFIXES, check_output_folder, intrinsics, write_frame
+from f2depth.inference.outputs import SUFFIXES, intrinsics, write_frame
 from f2depth.inference.scaling import median_ratio, read_reference_depth
 from f2depth.inference.sources import Frame
 from f2depth.io import write_json

@@ -1,12 +1,14 @@
 """Train one variant over its seeds: build data, flow teacher, validator and model, call ``loop.fit``, write
-the models, the history and the metrics (rank 0 only).
+each seed's model into the folder the stage gives, and return the metrics and the first seed's history.
 
-Outputs (``out_dir`` = ``models/depth_<variant>``): ``seed<k>.pt`` per seed (``f2depth.depth``
-checkpoints) and ``model.pt``, the **first listed seed's** model (a hard link, or a copy) — the model
-the ``evaluate`` stage uses for single-model results, unchanged when seeds are appended to the list.
-``history_file``: the first seed's per-epoch rows (DVC plots); every seed's rows go to its own MLflow
-run. Resume states live in ``<resume_dir>/<variant>/seed<k>.pt``; they are deleted when every seed of
-the variant has finished, so a run killed during a later seed does not retrain the earlier ones.
+The stage script (``stages/train_depth.py``) owns the outputs and the tracking: it opens
+``models/depth_<variant>`` as a temporary sibling that replaces the old folder only when complete, gives
+:func:`train_variant` an opener of one MLflow run per seed, writes the metrics and the history and then
+removes the resume states. Into ``build_dir`` (rank 0 only) go ``seed<k>.pt`` per seed (``f2depth.depth``
+checkpoints) and ``model.pt``, the **first listed seed's** model (a hard link, or a copy) — the model the
+``evaluate`` stage uses for single-model results, unchanged when seeds are appended to the list. Resume
+states live in ``<resume_dir>/<variant>/seed<k>.pt`` (:func:`resume_states`), so a run killed during a later
+seed does not retrain the earlier ones.
 """
 
 from __future__ import annotations
@@ -16,6 +18,9 @@ import logging
 import os
 import shutil
 import time
+from collections.abc import Callable
+from contextlib import AbstractContextManager
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -23,14 +28,13 @@ from f2depth import tracking
 from f2depth.data.errors import DataError
 from f2depth.data.prepared import PreparedSet
 from f2depth.depth import DepthModel, DepthModelConfig, save_checkpoint
-from f2depth.epochs import clear_state, fingerprint, write_history
-from f2depth.io import atomic_dir, write_json
+from f2depth.epochs import fingerprint
 from f2depth.poses.store import PosePriors
 from f2depth.superpixels import scaled_min_area
 from f2depth.train.data import DataConfig, TupleDataset
 from f2depth.train.diagnostics import DIAGNOSTIC_KEYS, TrainTruth, constant_depth_metrics, diagnose
 from f2depth.train.distributed import DistContext, barrier
-from f2depth.train.loop import HISTORY_COLUMNS, FitResult, LoopConfig, fit, seed_everything
+from f2depth.train.loop import FitResult, LoopConfig, fit, seed_everything
 from f2depth.train.schedule import LRSchedule
 from f2depth.train.settings import TrainSettings
 from f2depth.train.step import StepConfig
@@ -70,17 +74,38 @@ def _summary(result: FitResult) -> dict[str, Any]:
     }
 
 
+#: seed → a context manager yielding the MLflow run of that seed (f2depth.tracking.stage_run)
+RunOpener = Callable[[int], AbstractContextManager[tracking.StageRun]]
+
+
+def no_tracking(seed: int) -> AbstractContextManager[tracking.StageRun]:
+    return contextlib.nullcontext(tracking.StageRun())
+
+
+@dataclass(frozen=True)
+class VariantRun:
+    """What :func:`train_variant` returns: the metrics document and the first seed's per-epoch rows."""
+
+    metrics: dict[str, Any]
+    history: list[dict[str, Any]]
+
+
+def resume_states(s: TrainSettings) -> list[Path]:
+    """The resume-state file of every seed of the variant (removed by the stage once every output is
+    written)."""
+    return [Path(s.resume_dir) / s.variant / f"seed{seed}.pt" for seed in s.seeds]
+
+
 def train_variant(
     s: TrainSettings,
-    out_dir: str | Path,
-    metrics_file: str | Path,
-    history_file: str | Path,
+    build_dir: str | Path,
     ctx: DistContext | None = None,
-    params: dict[str, Any] | None = None,
+    open_run: RunOpener = no_tracking,
     resume: bool = True,
     progress: bool = True,
-) -> dict[str, Any]:
-    """Train every seed of ``s`` and write the outputs (module docstring); returns the metrics dict."""
+) -> VariantRun:
+    """Train every seed of ``s``, write the models into ``build_dir`` on rank 0 (module docstring) and
+    return the metrics and the first seed's history; ``open_run(seed)`` is entered around each seed."""
     ctx = ctx or DistContext()
     if s.flow_model and not Path(s.flow_model).is_file():
         raise DataError(s.flow_model, f"flow model not found (variants.{s.variant}.flow)",
@@ -100,7 +125,7 @@ def train_variant(
     floor = constant_depth_metrics(validator) if validator is not None else {}
     step_config = StepConfig(weights=s.weights, min_area=scaled_min_area(h, w), amp=s.amp)
     schedule = LRSchedule.scaled(s.lr, s.lr_epochs, s.epochs)
-    out_dir = Path(out_dir)
+    build_dir = Path(build_dir)
     if ctx.is_main:
         log.info("train_depth[%s]: %d tuples at %dx%d, batch %d, %d epochs (lr phases %s), flow model %s, "
                  "loss weights %s, %s", s.variant, len(dataset), h, w, s.batch_size, s.epochs,
@@ -110,53 +135,46 @@ def train_variant(
                  + (f", initial depth {s.init_depth} m" if s.init_depth is not None else "")
                  + (f", PoseCNN refines the geometric pose priors of {s.poses} ({priors.reliable_share:.0%} "
                     "of the pairs have one)" if priors is not None else ""))
-    # built in a temporary sibling and swapped in when complete: a failed run keeps the previous models, and
-    # stale seeds of an earlier run do not survive a successful one
-    with atomic_dir(out_dir) if ctx.is_main else contextlib.nullcontext(out_dir) as build_dir:
-        per_seed: list[dict[str, Any]] = []
-        main_history: list[dict[str, Any]] = []
-        for seed in s.seeds:
-            dataset.seed = seed
-            seed_everything(seed)
-            model = DepthModel(DepthModelConfig(height=h, width=w))
-            if s.imagenet_weights:
-                model.load_imagenet(s.imagenet_weights)
-            if s.init_depth is not None:
-                model.set_initial_depth(s.init_depth)
-            state_file = Path(s.resume_dir) / s.variant / f"seed{seed}.pt"
-            run_ctx = (tracking.stage_run("train_depth", params or {}, variant=s.variant)
-                       if ctx.is_main else contextlib.nullcontext(tracking.StageRun()))
-            with run_ctx as run:
-                run.set_tags({"seed": seed})
-                run.log_params({"effective": {"weights": s.weights, "without": list(s.without),
-                                              "flow_model": s.flow_model, "seed": seed}})
-                result = fit(
-                    model, dataset, teacher, step_config,
-                    LoopConfig(s.epochs, s.batch_size, schedule, seed=seed, workers=s.workers,
-                               sync_bn=s.sync_bn, progress=progress, val_every=s.val_every),
-                    ctx=ctx, checkpoint=state_file, resume=resume, fingerprint=run_fingerprint(s, seed),
-                    validate=_measure(validator, truth, ctx.device),
-                    on_epoch=lambda row, run=run: run.log_metrics(
-                        {k: v for k, v in row.items() if k != "epoch" and v is not None},
-                        step=int(row["epoch"])),
-                )  # fmt: skip
-                summary = {"seed": seed, **_summary(result)}
-                if ctx.is_main:
-                    if result.resumed_from:
-                        log.info("seed %d: resumed after epoch %d (%s)", seed, result.resumed_from,
-                                 state_file)
-                    save_checkpoint(build_dir / f"seed{seed}.pt", model, params=s.as_dict(),
-                                    variant=s.variant, seed=seed, history=result.history)
-                    run.log_metrics({f"final_{k}": v for k, v in summary["final_losses"].items()})
-            per_seed.append(summary)
-            if seed == s.seeds[0]:
-                main_history = result.history
-            barrier(ctx)
-        if ctx.is_main:  # model.pt: a hard link where possible, no second copy
-            try:
-                os.link(build_dir / f"seed{s.seeds[0]}.pt", build_dir / "model.pt")
-            except OSError:
-                shutil.copyfile(build_dir / f"seed{s.seeds[0]}.pt", build_dir / "model.pt")
+    per_seed: list[dict[str, Any]] = []
+    main_history: list[dict[str, Any]] = []
+    for seed, state_file in zip(s.seeds, resume_states(s)):
+        dataset.seed = seed
+        seed_everything(seed)
+        model = DepthModel(DepthModelConfig(height=h, width=w))
+        if s.imagenet_weights:
+            model.load_imagenet(s.imagenet_weights)
+        if s.init_depth is not None:
+            model.set_initial_depth(s.init_depth)
+        with open_run(seed) if ctx.is_main else no_tracking(seed) as run:
+            run.set_tags({"seed": seed})
+            run.log_params({"effective": {"weights": s.weights, "without": list(s.without),
+                                          "flow_model": s.flow_model, "seed": seed}})
+            result = fit(
+                model, dataset, teacher, step_config,
+                LoopConfig(s.epochs, s.batch_size, schedule, seed=seed, workers=s.workers,
+                           sync_bn=s.sync_bn, progress=progress, val_every=s.val_every),
+                ctx=ctx, checkpoint=state_file, resume=resume, fingerprint=run_fingerprint(s, seed),
+                validate=_measure(validator, truth, ctx.device),
+                on_epoch=lambda row, run=run: run.log_metrics(
+                    {k: v for k, v in row.items() if k != "epoch" and v is not None},
+                    step=int(row["epoch"])),
+            )  # fmt: skip
+            summary = {"seed": seed, **_summary(result)}
+            if ctx.is_main:
+                if result.resumed_from:
+                    log.info("seed %d: resumed after epoch %d (%s)", seed, result.resumed_from, state_file)
+                save_checkpoint(build_dir / f"seed{seed}.pt", model, params=s.as_dict(),
+                                variant=s.variant, seed=seed, history=result.history)
+                run.log_metrics({f"final_{k}": v for k, v in summary["final_losses"].items()})
+        per_seed.append(summary)
+        if seed == s.seeds[0]:
+            main_history = result.history
+        barrier(ctx)
+    if ctx.is_main:  # model.pt: a hard link where possible, no second copy
+        try:
+            os.link(build_dir / f"seed{s.seeds[0]}.pt", build_dir / "model.pt")
+        except OSError:
+            shutil.copyfile(build_dir / f"seed{s.seeds[0]}.pt", build_dir / "model.pt")
     metrics = {
         "variant": s.variant, "flow_model": s.flow_model, "weights": dict(s.weights),
         "without": list(s.without), "epochs": s.epochs, "batch_size": s.batch_size,
@@ -167,15 +185,10 @@ def train_variant(
         "val_constant_depth": {"abs_rel": floor.get("val_abs_rel"), "a1": floor.get("val_a1")},
         "per_seed": per_seed, "wall_seconds": round(time.perf_counter() - t0, 2),
     }  # fmt: skip
-    if ctx.is_main:
-        for seed in s.seeds:
-            clear_state(Path(s.resume_dir) / s.variant / f"seed{seed}.pt")
-        write_history(history_file, main_history, HISTORY_COLUMNS)
-        write_json(metrics_file, metrics)
-        if validator is not None:
-            validator.close()
+    if validator is not None:
+        validator.close()
     barrier(ctx)
-    return metrics
+    return VariantRun(metrics, main_history)
 
 
 def _measure(validator, truth: TrainTruth | None, device):
