@@ -13,6 +13,7 @@ import train_fakes
 import yaml
 
 from f2depth import params as P
+from f2depth.data.errors import DataError
 from f2depth.depth import load_checkpoint, read_checkpoint
 from f2depth.train.settings import settings_from_params
 from f2depth.train.step import TERMS
@@ -195,3 +196,31 @@ def test_repository_variants_are_consistent_with_dvc_yaml():
     assert {name: item["flow"] for name, item in stage["foreach"].items()} == tracked
     assert "--variant ${key}" in stage["do"]["cmd"] and "${item.flow}" in stage["do"]["deps"]
     assert "variants.${key}" in stage["do"]["params"]  # its loss weights: tests/test_dvc_deps.py
+
+
+def test_an_unwritable_metrics_folder_ends_the_stage_before_any_training(setup, monkeypatch):
+    """Before: the stage trained, replaced the models, deleted the resume state and then crashed on the
+    metrics folder, so a re-run retrained from scratch. Now every output location is probed first."""
+    import f2depth.data.writable as writable
+    import f2depth.train.run as run_module
+
+    root, path = setup
+    stage = load_stage(monkeypatch)
+    locked = root / "locked"
+    real_mkstemp = writable.tempfile.mkstemp
+
+    def refuse(*args, dir=None, **kwargs):  # what mkstemp does in a folder without write permission
+        if Path(dir) == locked:
+            raise PermissionError(13, "Permission denied", str(Path(dir) / ".f2depth-write-test.x"))
+        return real_mkstemp(*args, dir=dir, **kwargs)
+
+    def fit_must_not_run(*args, **kwargs):
+        raise AssertionError("training started before the output locations were checked")
+
+    monkeypatch.setattr(writable.tempfile, "mkstemp", refuse)
+    monkeypatch.setattr(run_module, "fit", fit_must_not_run)
+    with pytest.raises(DataError,
+                       match=r"locked: output folder is not writable .*give --metrics a folder"):
+        stage.main(["train_depth.py", "--variant", "baseline", "--params", str(path),
+                    "--models", str(root / "models"), "--metrics", str(locked)])
+    assert not (root / "models" / "depth_baseline").exists()
