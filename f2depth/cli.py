@@ -1,11 +1,11 @@
 """The ``f2depth`` command: ``predict``, ``export`` and ``reconstruct`` (f2depth.inference does the work).
 
 Exit codes: 0 success; 1 bad input (the one line on stderr names the file and the problem); 2 wrong
-command-line usage; 3 an optional dependency is missing; 130 interrupted (files already written are
-complete: every output is written atomically). Every error is one line on stderr; warnings (e.g. a video
-that decodes to fewer frames than its container announces) are lines starting ``f2depth <command>:
-warning:``. Numbers must be finite, devices available, export sizes and opsets within the bounds of
-``f2depth.inference.limits``.
+command-line usage; 3 an optional dependency is missing; 130 interrupted, 143 terminated by SIGTERM (files
+already written are complete: every output is written atomically). Every error is one line on stderr;
+warnings (e.g. a video that decodes to fewer frames than its container announces) are lines starting
+``f2depth <command>: warning:``. Numbers must be finite, devices available, export sizes and opsets
+within the bounds of ``f2depth.inference.limits``.
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ from f2depth.inference.limits import (
     check_export_size,
 )
 
-EXIT_INPUT, EXIT_USAGE, EXIT_MISSING, EXIT_INTERRUPTED = 1, 2, 3, 130
+EXIT_INPUT, EXIT_USAGE, EXIT_MISSING, EXIT_INTERRUPTED, EXIT_TERMINATED = 1, 2, 3, 130, 143
 _DEVICE = re.compile(r"auto|cpu|mps|cuda(:\d+)?")
 
 RELATIVE_NOTE = """\
@@ -49,7 +49,8 @@ Writes per frame (video frames are named frame_000000, ...):
   <name>_depth_color.png  colour-mapped disparity (magma)
   <name>_points.ply       with --ply: coloured points in the camera frame (x right, y down, z forward)
 and predict.json (scale, model, intrinsics). Every file is written atomically.
-exit codes: 0 ok, 1 bad input, 2 usage error, 3 optional dependency missing, 130 interrupted"""
+exit codes: 0 ok, 1 bad input, 2 usage error, 3 optional dependency missing, 130 interrupted, 143
+terminated (SIGTERM)"""
 
 RECONSTRUCT_DESCRIPTION = """\
 Fuse a sequence's predicted depth with its known poses into a TSDF volume (Open3D's
@@ -62,7 +63,8 @@ EXPORT_DESCRIPTION = """\
 Export the depth network (image (B,3,H,W) in [0,1] -> depth (B,1,H,W), dynamic batch) and check the
 export against PyTorch with onnxruntime (max abs difference printed); nothing is written if it fails."""
 
-EXIT_NOTE = "exit codes: 0 ok, 1 bad input, 2 usage error, 3 optional dependency missing, 130 interrupted"
+EXIT_NOTE = ("exit codes: 0 ok, 1 bad input, 2 usage error, 3 optional dependency missing, 130 interrupted, "
+             "143 terminated (SIGTERM)")
 
 
 class UsageError(Exception):
@@ -264,8 +266,9 @@ def _out(text: str) -> None:
 def _cmd_predict(args: argparse.Namespace) -> int:
     from f2depth.inference.backends import load_backend
     from f2depth.inference.predict import Predictor, PredictSettings, run_predict
-    from f2depth.inference.sources import open_source
+    from f2depth.inference.sources import check_output_apart, open_source
 
+    check_output_apart(args.input, args.output)
     source = open_source(args.input)
     backend = load_backend(args.model, args.onnx, args.device)
     settings = PredictSettings(args.output, batch_size=args.batch_size, scale=args.scale,
@@ -273,7 +276,8 @@ def _cmd_predict(args: argparse.Namespace) -> int:
                                K_args={"fx": args.fx, "fy": args.fy, "cx": args.cx, "cy": args.cy},
                                progress=False if args.no_progress else None)
     predictor = Predictor(backend, post_process=args.post_process, upsample=args.upsample)
-    summary = run_predict(source, predictor, settings, total=len(source), input_desc=str(args.input))
+    summary = run_predict(source, predictor, settings, total=len(source), input_desc=str(args.input),
+                          renamed=source.renamed)
     kind = "metric" if summary["metric"] else "relative (no --scale/--scale-from)"
     _out(f"wrote {summary['frames']} frame(s) to {args.output} ({backend.name}, "
          f"scale {summary['scale']:.4g}, {kind})")
@@ -380,9 +384,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     from f2depth.inference.export import ExportError
     from f2depth.inference.optional import MissingDependency
     from f2depth.params import ParamsError
+    from f2depth.signals import Terminated, sigterm_as_interrupt
 
     try:
-        return args.func(args)
+        with sigterm_as_interrupt():  # SIGTERM ends the run as Ctrl-C does
+            return args.func(args)
     except UsageError as exc:
         return _fail(args.command, str(exc), EXIT_USAGE)
     except MissingDependency as exc:
@@ -392,6 +398,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except OSError as exc:
         where = f"{exc.filename}: " if exc.filename else ""
         return _fail(args.command, f"{where}{exc.strerror or exc}", EXIT_INPUT)
+    except Terminated:
+        return _fail(args.command, "terminated (SIGTERM); every file written so far is complete",
+                     EXIT_TERMINATED)
     except KeyboardInterrupt:
         return _fail(args.command, "interrupted; every file written so far is complete", EXIT_INTERRUPTED)
     except MemoryError:

@@ -14,12 +14,14 @@ finite, stops the run with :class:`NonFiniteEpochError`: one line naming the run
 cause. Its state is not saved, so the resume file keeps the last good epoch.
 
 **Resume.** After every epoch the main process writes, atomically (``f2depth.io.torch_save``), the file
-``{"format": "f2depth.train_state", "version", "run", "fingerprint", "epoch", "history", "parts"}`` —
+``{"format": "f2depth.train_state", "version", "run", "fingerprint", "fingerprint_parts", "epoch", "history",
+"parts"}`` —
 ``parts`` the ``state_dict()`` of each named part (model, optimizer, grad scaler, RNG state), plain tensors
 and Python values, so it loads with ``torch.load(weights_only=True)``. ``fingerprint`` (:func:`fingerprint`:
-a hash of the settings and input files) identifies the run: a state whose fingerprint, format or version
-differs is never resumed, so changed parameters or data start afresh. A finished run's caller deletes the
-file (:func:`clear_state`) once its own outputs are written, never before.
+a hash of the settings and the contents of the input files) identifies the run: a state whose fingerprint,
+format or version differs is never resumed, so changed parameters or data start afresh, with one warning
+naming what changed (``fingerprint_parts``: the digest of each setting and input). A finished run's caller
+deletes the file (:func:`clear_state`) once its own outputs are written, never before.
 
 **Hooks.** ``end_epoch(row) → dict`` (main process, before the state is saved) adds columns to the
 epoch's row: validation, the learning rate. ``on_epoch(row)`` (main process, after the save) mirrors each
@@ -81,12 +83,26 @@ class RNGState:
         random.setstate((version, tuple(internal), gauss))
 
 
+class Fingerprint(str):
+    """A run's fingerprint (the hex digest) that keeps the digest of each of its parts — every top-level
+    setting and every input file or folder — so that a state of another run can say what differs."""
+
+    parts: dict[str, str]
+
+
+def _digest(obj: Any) -> str:
+    return hashlib.sha256(json.dumps(obj, sort_keys=True, default=str).encode()).hexdigest()
+
+
 def fingerprint(settings: Mapping[str, Any],
-                files: Mapping[str, str | os.PathLike | None] | None = None) -> str:
-    """sha256 of the JSON of ``settings`` plus the sha256 of each named file (None = no file)."""
+                files: Mapping[str, str | os.PathLike | None] | None = None) -> Fingerprint:
+    """sha256 of the JSON of ``settings`` plus the sha256 of each named file or folder (its contents,
+    :func:`file_digest`; None = no file). ``.parts``: the digest of each setting and each file."""
     digests = {k: file_digest(v) if v else None for k, v in (files or {}).items()}
-    digest = {"settings": dict(settings), "files": digests}
-    return hashlib.sha256(json.dumps(digest, sort_keys=True, default=str).encode()).hexdigest()
+    fp = Fingerprint(_digest({"settings": dict(settings), "files": digests}))
+    fp.parts = {**{f"setting {k}": _digest(v) for k, v in settings.items()},
+                **{f"input {k}": str(v) for k, v in digests.items()}}
+    return fp
 
 
 def file_digest(path: str | os.PathLike) -> str:
@@ -109,7 +125,8 @@ def save_state(path: str | os.PathLike, *, run: str, fingerprint: str, epoch: in
     """Write the state after ``epoch`` finished epochs (atomically: a crash leaves the previous file)."""
     states = {name: {k: v.detach().cpu() for k, v in p.state_dict().items()}
               if isinstance(p, torch.nn.Module) else p.state_dict() for name, p in parts.items()}
-    torch_save(path, {"format": FORMAT, "version": VERSION, "run": run, "fingerprint": fingerprint,
+    torch_save(path, {"format": FORMAT, "version": VERSION, "run": run, "fingerprint": str(fingerprint),
+                      "fingerprint_parts": dict(getattr(fingerprint, "parts", {})),
                       "epoch": int(epoch), "history": [dict(r) for r in history], "parts": states})
 
 
@@ -125,8 +142,19 @@ def load_state(path: str | os.PathLike, expected_fingerprint: str) -> tuple[dict
     if not isinstance(state, dict) or state.get("format") != FORMAT or state.get("version") != VERSION:
         return None, f"{p} is not a {FORMAT} v{VERSION} file; starting afresh"
     if state.get("fingerprint") != expected_fingerprint:
-        return None, f"{p} belongs to a run with other settings or inputs; starting afresh"
+        return None, (f"{p} belongs to a run with other {_changed(state, expected_fingerprint)}; "
+                      "starting afresh")
     return state, ""
+
+
+def _changed(state: dict[str, Any], expected: str) -> str:
+    """What differs between a saved state's fingerprint and ``expected`` (a :class:`Fingerprint`), as
+    "settings or inputs: input prepared, setting lr" — or "settings or inputs" where it cannot tell."""
+    old, new = state.get("fingerprint_parts"), getattr(expected, "parts", None)
+    if not isinstance(old, dict) or not new:
+        return "settings or inputs"
+    names = sorted(k for k in set(old) | set(new) if old.get(k) != new.get(k))
+    return "settings or inputs" + (f" ({', '.join(names)} changed)" if names else "")
 
 
 def clear_state(path: str | os.PathLike) -> None:

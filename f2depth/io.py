@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import csv
+import errno
 import io
 import json
 import os
@@ -35,9 +36,37 @@ def _file_mode() -> int:
 _FILE_MODE = _file_mode()
 
 
+#: Below this many free bytes a failed write is taken for a full disk (writers say it in their own words:
+#: numpy "30000 requested and 23520 written", torch "[enforce fail at inline_container.cc]", OpenCV False)
+FULL_DISK_BYTES = 1 << 20
+
+
+def no_space(path: str | os.PathLike, exc: BaseException) -> OSError | None:
+    """The error to raise instead of ``exc`` when writing ``path`` failed because its disk is full: an
+    ``OSError(ENOSPC)`` whose message names the file, the free space and the fix; else None."""
+    if isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EDQUOT):
+        full = True
+    elif isinstance(exc, (OSError, RuntimeError)):
+        try:
+            full = shutil.disk_usage(Path(path).parent).free < FULL_DISK_BYTES
+        except OSError:
+            full = False
+    else:
+        full = False
+    if not full:
+        return None
+    try:
+        free = f"{shutil.disk_usage(Path(path).parent).free / 1e6:.1f} MB free"
+    except OSError:
+        free = "free space unknown"
+    return OSError(errno.ENOSPC, f"no space left on device ({free}); nothing half-written was kept: free "
+                                 "some space or write to another disk", str(path))
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[Path]:
-    """Yield a temporary path next to ``path``; on success rename it onto ``path``.
+    """Yield a temporary path next to ``path``; on success rename it onto ``path``. A write that fails
+    on a full disk is raised as ``OSError(ENOSPC)`` naming ``path`` (:func:`no_space`).
 
     ``suffix`` defaults to the destination's suffix so that writers that infer the format from
     the file name (OpenCV, numpy) keep working.
@@ -52,16 +81,54 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
     try:
         yield tmp_path
         os.replace(tmp_path, dest)
-    except BaseException:
+    except BaseException as exc:
+        full = no_space(dest, exc)  # asked before the temporary's space is freed again
         tmp_path.unlink(missing_ok=True)
+        if full is not None:
+            raise full from exc
         raise
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # someone else's live process
+        return True
+    return True
+
+
+def clear_stale_temporaries(path: str | os.PathLike) -> list[Path]:
+    """Remove the temporary siblings :func:`atomic_dir` left for ``path`` in processes that no longer run
+    (killed with -9, or a power cut): ``.<name>.tmp-<pid>`` folders are deleted; an ``.<name>.old-<pid>``
+    folder — the previous good output, moved aside in the instant before the new one was renamed in — is
+    renamed back when ``path`` is missing, else deleted. Folders of live processes are left alone. Returns
+    what was removed or restored."""
+    dest = Path(path)
+    if not dest.parent.is_dir():
+        return []
+    pattern = re.compile(rf"\.{re.escape(dest.name)}\.(tmp|old)-(\d+)")
+    done = []
+    for entry in sorted(dest.parent.iterdir()):
+        m = pattern.fullmatch(entry.name)
+        if not m or int(m.group(2)) == os.getpid() or _pid_alive(int(m.group(2))):
+            continue
+        if m.group(1) == "old" and not dest.exists():
+            entry.rename(dest)
+        else:
+            shutil.rmtree(entry, ignore_errors=True)
+        done.append(entry)
+    return done
 
 
 @contextlib.contextmanager
 def atomic_dir(path: str | os.PathLike) -> Iterator[Path]:
     """Yield an empty temporary sibling folder of ``path``; on success it replaces ``path`` (two renames,
-    the old folder deleted last), on any error it is deleted and ``path`` is left as it was."""
+    the old folder deleted last), on any error it is deleted and ``path`` is left as it was. Temporaries
+    that killed runs left for ``path`` are cleared first (:func:`clear_stale_temporaries`)."""
     dest = Path(path)
+    clear_stale_temporaries(dest)
     tmp = dest.parent / f".{dest.name}.tmp-{os.getpid()}"
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir(parents=True)

@@ -27,12 +27,47 @@ class ParamsError(ValueError):
     """A parameter is missing or has a wrong value; the message names the key and the file."""
 
 
+class _DuplicateKey(Exception):
+    def __init__(self, key: Any, first: int, second: int) -> None:
+        super().__init__(key, first, second)
+        self.key, self.first, self.second = key, first, second
+
+
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """PyYAML's safe loader, except that a key given twice in one mapping is an error (PyYAML keeps the
+    last one silently; DVC refuses the file). Merge keys (``<<``) may still be overridden."""
+
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
+        seen: dict[Any, int] = {}
+        for key_node, _ in node.value:
+            if key_node.tag == "tag:yaml.org,2002:merge" or not isinstance(key_node, yaml.ScalarNode):
+                continue
+            key = self.construct_object(key_node)
+            line = key_node.start_mark.line + 1
+            if key in seen:
+                raise _DuplicateKey(key, seen[key], line)
+            seen[key] = line
+        return super().construct_mapping(node, deep=deep)
+
+
 def load(path: str | os.PathLike = DEFAULT_PARAMS) -> dict[str, Any]:
+    """The parameter file as a dict (``_file`` added: its path, for messages). A missing file, a YAML
+    error or a key given twice in one section is a :class:`ParamsError` naming the file (and the lines)."""
     p = Path(path)
     if not p.is_file():
         raise ParamsError(f"{p}: parameter file not found (run from the repository root or pass its path)")
     with p.open() as fh:
-        data = yaml.safe_load(fh) or {}
+        try:
+            data = yaml.load(fh, Loader=_UniqueKeyLoader) or {}
+        except _DuplicateKey as dup:
+            raise ParamsError(f"{p}: key '{dup.key}' is given twice, on lines {dup.first} and {dup.second} "
+                              "(YAML would keep the second silently, DVC refuses the file); keep one"
+                              ) from None
+        except yaml.YAMLError as exc:
+            mark = getattr(exc, "problem_mark", None)
+            where = f" line {mark.line + 1}" if mark is not None else ""
+            problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+            raise ParamsError(f"{p}:{where} is not valid YAML ({problem}); fix the file") from None
     if not isinstance(data, dict):
         raise ParamsError(f"{p}: expected a mapping at the top level")
     data["_file"] = str(p)

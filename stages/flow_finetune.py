@@ -98,10 +98,15 @@ def main(argv: list[str]) -> None:
     torch.manual_seed(cfg.seed)
     t0 = time.perf_counter()
     model = load_flow_model(pretrained)
+    levels = model.flow_levels()
+    if loss == "patch" and any(w > 0 for w in cfg.w_scales[levels:]):
+        raise P.ParamsError(f"{p['_file']}: flow_finetune.w_scales {list(cfg.w_scales)} weighs "
+                            f"{len(cfg.w_scales)} levels but the network of {pretrained} outputs {levels}; "
+                            f"give at most {levels} weights, finest first")
     test = list(gt_pairs(ds, split.test))
     before = {"test": _epe(evaluate_epe(model, test, device)),
               "train": _epe(evaluate_epe(model, gt_pairs(ds, split.train, train_limit), device))}
-    fingerprint = {"pretrained_sha256": file_digest(pretrained),
+    fingerprint = {"pretrained_sha256": file_digest(pretrained), "prepared_sha256": file_digest(ds.root),
                    "keypoints_sha256": file_digest(kp_path) if keypoints is not None else None}
     with tracking.stage_run("flow_finetune", p, variant=loss) as run:
         def on_epoch(epoch: int, row: dict, history: list[dict]) -> None:

@@ -71,7 +71,13 @@ class PretrainStage:
 
 
 def config_from_params(p: dict) -> tuple[PretrainConfig, PretrainStage]:
-    return P.section(p, "flow_pretrain", PretrainConfig, PretrainStage, seed=P.value(p, "seed", int))
+    cfg, stage = P.section(p, "flow_pretrain", PretrainConfig, PretrainStage, seed=P.value(p, "seed", int))
+    if not stage.checkpoint and stage.source != "chairs" and cfg.epochs == 0:
+        raise P.ParamsError(f"{p['_file']}: flow_pretrain.raw_epochs and census_epochs are both 0, so "
+                            "ARFlow's route would save the random initial weights as the flow teacher; set "
+                            "one of them above 0, use source: chairs, or import ARFlow's model "
+                            "(flow_pretrain.checkpoint)")
+    return cfg, stage
 
 
 def split_sequences(p: dict, stage: PretrainStage) -> tuple[list[str], list[str]]:

@@ -85,3 +85,17 @@ def test_truncated_wrong_size_bad_pose(root):
     (q / "frame-000002.pose.txt").write_text("1 0 0\n0 1 0\n")
     with pytest.raises(DataError, match=r"frame-000002\.pose\.txt: expected a finite 4×4"):
         read_pose(q / "frame-000002.pose.txt")
+
+
+def test_an_empty_pose_file_is_one_line_without_numpy_warnings(root, recwarn):
+    """Issue 25 item 9. Before: `reconstruct` with an empty pose file added numpy's "loadtxt: input
+    contained no data" warning to its one line. Now: a DataError saying the file is empty, no warning."""
+    q = root / "heads" / "seq-01"
+    for text in ("", "\n  \n"):
+        (q / "frame-000002.pose.txt").write_text(text)
+        with pytest.raises(DataError, match=r"frame-000002\.pose\.txt: empty pose file \(no matrix\)"):
+            read_pose(q / "frame-000002.pose.txt")
+    (q / "frame-000002.pose.txt").write_text("# a comment only\n")
+    with pytest.raises(DataError, match=r"frame-000002\.pose\.txt: expected a finite 4×4"):
+        read_pose(q / "frame-000002.pose.txt")
+    assert len(recwarn) == 0, [str(w.message) for w in recwarn]

@@ -1,6 +1,7 @@
 """End to end: the repository's own dvc.yaml, params.yaml, configs/, stages/ and f2depth/ copied into a fresh
 git + DVC repository, params cut to a tiny configuration, then `dvc repro` (every stage must run, the
-tables must exist) and a second `dvc repro` (everything must be up to date).
+tables must exist, every output must be a link to the DVC cache) and a second `dvc repro` (everything must be
+up to date).
 
 Marked ``e2e`` (select with ``-m e2e``, leave out with ``-m "not e2e"``). It runs `dvc` from the venv
 (the directory of the running Python) as a subprocess, with MLflow mirroring off; about 2-3 minutes on a
@@ -121,6 +122,7 @@ def test_dvc_repro_runs_every_stage_then_is_up_to_date(tmp_path):
     git = ["git", "-c", "user.name=e2e", "-c", "user.email=e2e@example.invalid"]
     run(["git", "init", "-q"], repo, env)
     run([str(BIN / "dvc"), "init", "-q"], repo, env)
+    shutil.copy2(ROOT / ".dvc" / "config", repo / ".dvc" / "config")  # the repository's cache link types
     run([str(BIN / "dvc"), "config", "core.analytics", "false"], repo, env)
     run(git + ["add", "-A"], repo, env)
     run(git + ["commit", "-q", "-m", "tiny pipeline"], repo, env)
@@ -140,6 +142,12 @@ def test_dvc_repro_runs_every_stage_then_is_up_to_date(tmp_path):
     assert (repo / "reports" / "README.md").is_file()
     for v in params["variants"]:
         assert (repo / "metrics" / "evaluate" / f"{v}.json").is_file()
+
+    # issue 25 item 10: after a plain `dvc repro` every output file is a link to the cache, not a copy
+    outputs = [p for top in ("data", "models") for p in (repo / top).rglob("*")
+               if p.is_file() and p.name != ".gitignore"]  # DVC's own .gitignore files are no outputs
+    copies = [str(p.relative_to(repo)) for p in outputs if not p.is_symlink() and p.stat().st_nlink < 2]
+    assert len(outputs) > 50 and copies == [], copies[:10]
 
     second = run([str(BIN / "dvc"), "repro"], repo, env)
     assert "Running stage" not in second.stdout

@@ -31,8 +31,10 @@ from f2depth.flow.finetune import (
     train_step,
 )
 from f2depth.flow.finetune_data import FlowPairs, collate, gt_pair, gt_pairs, split_pairs, true_intrinsics
+from f2depth.flow.network import FlowNetwork
 from f2depth.flow.pwclite import PWCLite
 from f2depth.keypoints.store import KeypointFile, save_keypoints
+from f2depth.params import ParamsError
 
 ROOT = Path(__file__).resolve().parents[1]
 H, W = 32, 48
@@ -313,3 +315,83 @@ def test_flow_figure_without_ground_truth_draws_the_predictions(tmp_path, monkey
     assert "2 pairs × 3 models" in out
     fig = cv2.imread(str(tmp_path / "reports" / "figures" / "flow_comparison.png"))
     assert fig is not None and fig.shape[1] > 4 * fig.shape[0] / 2
+
+
+def write_stage_params(root: Path, **finetune) -> None:
+    """params.yaml for one tiny `flow_finetune --loss patch` run in ``root`` (``finetune``: key edits)."""
+    section = {"losses": ["patch"], "epochs": 1, "batch_size": 6, "lr": 5e-5, "patch_spacing": 2,
+               "w_scales": [1, 1, 1, 1, 0], "backward": True, "amp": False, "occlusion": "range_map",
+               "augment": True, "holdout_scenes": 1, "eval_train_pairs": 1, "workers": 0,
+               "pretrained": "models/flow_pretrained.pt", "model": "models/flow_{loss}.pt",
+               "out_dir": "metrics/flow_finetune", "resume_dir": "tmp/flow_finetune", **finetune}
+    params = {"seed": 0, "device": "cpu", "loss_weights": {"flow_smooth": 50}, "allow_random_init": True,
+              "flow_pretrain": {"checkpoint": None},
+              "data": {"prepared": "data/prepared", "keypoints": "data/keypoints"}, "flow_finetune": section}
+    (root / "params.yaml").write_text(yaml.safe_dump(params))
+
+
+def test_w_scales_beyond_the_networks_levels_are_refused_before_evaluation(prepared, tmp_path, monkeypatch):
+    """Before: six w_scales for PWC-Lite's five levels ended in a ValueError traceback from the loss after
+    the pretrained model's evaluation (21 s on the default). Now one line naming the key, before it."""
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("F2DEPTH_MLFLOW", "0")
+    save_flow_model(tmp_path / "models" / "flow_pretrained.pt", PWCLite())
+    assert PWCLite().flow_levels() == 5 == FlowNetwork.flow_levels(PWCLite())  # the count = a forward's
+    write_stage_params(tmp_path, w_scales=[1, 1, 1, 1, 0, 1])
+    stage = _load_stage("flow_finetune")
+
+    def must_not_run(*args, **kwargs):
+        raise AssertionError("evaluated before w_scales was checked")
+
+    monkeypatch.setattr(stage, "evaluate_epe", must_not_run)
+    with pytest.raises(ParamsError, match=r"params\.yaml: flow_finetune\.w_scales \[1\.0, 1\.0, 1\.0, 1\.0, "
+                                          r"0\.0, 1\.0\] "
+                                          r"weighs 6 levels but the network of models/flow_pretrained\.pt "
+                                          r"outputs 5"):
+        stage.main(["flow_finetune.py", "--loss", "patch"])
+    assert not (tmp_path / "models" / "flow_patch.pt").exists()
+
+
+def test_the_resume_fingerprint_covers_the_prepared_images(prepared, tmp_path, monkeypatch):
+    """Issue 25 item 1: before, flow_finetune's fingerprint held the pretrained model and the keypoints
+    only, so a state resumed on regenerated images. Now the prepared set's contents are in it."""
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("F2DEPTH_MLFLOW", "0")
+    save_flow_model(tmp_path / "models" / "flow_pretrained.pt", PWCLite())
+    write_stage_params(tmp_path)
+    stage = _load_stage("flow_finetune")
+    seen = []
+
+    class Captured(Exception):
+        pass
+
+    def capture(model, pairs, cfg, test, resume_path, fingerprint, *args):
+        seen.append(dict(fingerprint))
+        raise Captured
+
+    monkeypatch.setattr(stage, "finetune", capture)
+    image = next(iter(sorted((prepared / "prepared" / "images").rglob("*.png"))))
+    for _ in range(2):
+        with pytest.raises(Captured):
+            stage.main(["flow_finetune.py", "--loss", "patch"])
+        rgb = cv2.imread(str(image))
+        cv2.imwrite(str(image), 255 - rgb)  # regenerated images, same names and tables
+    assert seen[0]["pretrained_sha256"] == seen[1]["pretrained_sha256"]
+    assert seen[0]["prepared_sha256"] != seen[1]["prepared_sha256"]
+
+
+def test_a_depth_model_as_the_pretrained_flow_is_one_line(prepared, tmp_path, monkeypatch):
+    """Issue 25 item 4: `flow_finetune.pretrained` naming a depth model → a CheckpointError (a DataError:
+    one line through run_stage) naming the file, before anything is trained."""
+    import inference_data
+
+    from f2depth.data.errors import CheckpointError, DataError
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("F2DEPTH_MLFLOW", "0")
+    inference_data.make_checkpoint(tmp_path / "models" / "depth.pt", seed=5)
+    write_stage_params(tmp_path, pretrained="models/depth.pt")
+    with pytest.raises(CheckpointError, match=r"models/depth\.pt: checkpoint format 'f2depth\.depth', "
+                                              r"expected 'f2depth\.flow'"):
+        _load_stage("flow_finetune").main(["flow_finetune.py", "--loss", "patch"])
+    assert issubclass(CheckpointError, DataError) and not (tmp_path / "models" / "flow_patch.pt").exists()

@@ -233,3 +233,12 @@ def test_stage_names_the_file_and_key_of_an_unknown_network(tmp_path, monkeypatc
 def test_config_rejects_an_unknown_init():
     with pytest.raises(ValueError, match="'msra' or 'pytorch'"):
         PretrainConfig(init="xavier")
+
+
+def test_zero_training_epochs_are_refused(tmp_path, monkeypatch):
+    """Before: raw_epochs 0 and census_epochs 0 exited 0 and saved the random initial weights as
+    flow_pretrained.pt. Now the ARFlow route refuses it in one line, before anything is written."""
+    with pytest.raises(ParamsError, match=r"flow_pretrain\.raw_epochs and census_epochs are both 0.*random "
+                                            r"initial weights"):
+        run_stage(tmp_path, monkeypatch, raw_epochs=0, census_epochs=0)
+    assert not (tmp_path / "models").exists() and not (tmp_path / "metrics").exists()

@@ -15,7 +15,7 @@ import dvc_deps  # noqa: E402
 LAYERS: tuple[tuple[str, ...], ...] = (
     # primitives: geometry, cameras, parameters, files, tracking, superpixels
     ("numbers", "io", "params", "precision", "workers", "tracking", "colour", "geometry", "camera",
-     "superpixels"),
+     "superpixels", "signals"),
     ("epochs", "profile"),  # the one training-loop skeleton, profiling
     ("data",),  # on-disk formats, loaders, the typed samples, the prepare stage
     ("synth",),  # the embedded synthetic world (and the flow teacher's generated pairs)

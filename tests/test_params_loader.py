@@ -257,3 +257,22 @@ def test_train_depth_settings_reject_bad_values(dotted, bad, expected):
     with pytest.raises(P.ParamsError) as info:
         settings_from_params(params, "full")
     assert str(info.value).startswith(expected) and "\n" not in str(info.value)
+
+
+def test_a_key_given_twice_is_refused_with_its_lines(tmp_path):
+    """Issue 25 item 9. Before: `train_depth.epochs` twice was refused by DVC but silently last-wins in the
+    stage scripts and torchrun. Now the loader names the key and both lines."""
+    path = tmp_path / "params.yaml"
+    path.write_text("seed: 0\ntrain_depth:\n  epochs: 25\n  batch_size: 4\n  epochs: 3\n"
+                    "other:\n  epochs: 1\n")
+    with pytest.raises(P.ParamsError, match=rf"^{path}: key 'epochs' is given twice, on lines 3 and 5 "):
+        P.load(path)
+    path.write_text("base: &b {epochs: 1, lr: 2}\ntrain: {<<: *b, epochs: 3}\n")  # overriding a merge is fine
+    assert P.load(path)["train"] == {"epochs": 3, "lr": 2}
+
+
+def test_a_file_that_is_not_yaml_is_one_line_with_its_line(tmp_path):
+    path = tmp_path / "params.yaml"
+    path.write_text("seed: 0\ntrain_depth:\n  epochs: [1, 2\n  lr: 3\n")
+    with pytest.raises(P.ParamsError, match=rf"^{path}: line \d+ is not valid YAML \(.+\); fix the file$"):
+        P.load(path)

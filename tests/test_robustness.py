@@ -403,3 +403,65 @@ def test_missing_flow_model_names_the_variant_key(tmp_path):
                                         r"flow\); `dvc repro train_depth@full` builds it first"):
         train_variant(settings, tmp_path / "out", progress=False)
     assert not (tmp_path / "out").exists()
+
+
+def test_inputs_sharing_a_stem_get_distinct_outputs(ckpt, tmp_path, capfd):
+    """Issue 25 item 2. Before: a.png, a.PNG, b.jpg, b_jpg.png and b.png → "wrote 5 frame(s)" and 3 sets of
+    files (a_png twice, b_jpg twice). Now every input has its own files (numbered in name order),
+    listed in predict.json."""
+    names = ["a.png", "a.PNG", "b.jpg", "b_jpg.png", "b.png"]
+    sizes = {name: (40 + 4 * i, 56 + 4 * i) for i, name in enumerate(names)}  # a size identifies its input
+    (tmp_path / "in").mkdir()
+    for i, name in enumerate(names):
+        fakes.write_rgb(tmp_path / "in" / name, fakes.smooth_image(sizes[name], i))
+    code = main(["predict", "--model", str(ckpt), "--input", str(tmp_path / "in"), "--output",
+                 str(tmp_path / "out"), "--device", "cpu", "--no-progress"])
+    assert code == 0 and "wrote 5 frame(s)" in capfd.readouterr().out
+    summary = json.loads((tmp_path / "out" / "predict.json").read_text())
+    stems = {name: summary["renamed"].get(str(tmp_path / "in" / name), Path(name).stem) for name in names}
+    assert len({s.casefold() for s in stems.values()}) == 5  # distinct even on a case-blind file system
+    assert stems == {"a.PNG": "a_png", "a.png": "a_png_2", "b.jpg": "b_jpg_2", "b_jpg.png": "b_jpg",
+                     "b.png": "b_png"}
+    for name, stem in stems.items():
+        assert np.load(tmp_path / "out" / f"{stem}_depth.npy").shape == sizes[name]
+    assert len(list((tmp_path / "out").glob("*_depth.npy"))) == 5
+    assert any("share a file stem" in w for w in summary["warnings"])
+
+
+def test_the_output_folder_may_not_be_the_input_folder(ckpt, images, tmp_path, capfd):
+    """Issue 25 item 5. Before: --output equal to --input wrote depth maps beside the photos and a second
+    run read them as photos (f0_depth_color_depth_mm.png). Now refused in one line, nothing written."""
+    before = sorted(p.name for p in images.iterdir())
+    link = tmp_path / "same"
+    link.symlink_to(images, target_is_directory=True)
+    for output in (images, link):
+        code = main(["predict", "--model", str(ckpt), "--input", str(images), "--output", str(output)])
+        line = one_error_line(capfd, "predict")
+        assert code == 1 and line.endswith(f"{output}: the output folder is the input folder, so a later run "
+                                           "would read these depth and colour maps as photos; give --output "
+                                           f"another folder (e.g. {images}_depth)")
+    assert sorted(p.name for p in images.iterdir()) == before
+    code = main(["predict", "--model", str(ckpt), "--input", str(images), "--output", str(images / "depth"),
+                 "--no-progress"])  # a folder inside is fine: folders are not read recursively
+    assert code == 0 and len(list((images / "depth").glob("*_depth.npy"))) == 2
+
+
+def test_an_exif_rotated_jpeg_is_predicted_upright(ckpt, tmp_path, capfd):
+    """Issue 25 item 9: a phone JPEG stored landscape with EXIF orientation 6 (rotate 90° clockwise to
+    show) gives a depth map in the orientation it is shown in, as predict.json says."""
+    from PIL import Image
+
+    stored = np.zeros((40, 64, 3), np.uint8)
+    stored[:, :16] = 255  # a white band on the left of the stored image: on top once shown
+    image = Image.fromarray(stored)
+    exif = image.getexif()
+    exif[0x0112] = 6  # Orientation 6: shown rotated 90° clockwise
+    (tmp_path / "in").mkdir()
+    image.save(tmp_path / "in" / "phone.jpg", exif=exif.tobytes(), quality=95)
+    assert read_image(tmp_path / "in" / "phone.jpg").shape == (64, 40, 3)
+    assert read_image(tmp_path / "in" / "phone.jpg")[:12].mean() > 200  # the band is on top
+    code = main(["predict", "--model", str(ckpt), "--input", str(tmp_path / "in"), "--output",
+                 str(tmp_path / "out"), "--no-progress"])
+    assert code == 0 and np.load(tmp_path / "out" / "phone_depth.npy").shape == (64, 40)
+    summary = json.loads((tmp_path / "out" / "predict.json").read_text())
+    assert summary["orientation"].startswith("EXIF orientation applied")

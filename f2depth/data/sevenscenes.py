@@ -8,8 +8,10 @@ depth is not registered to the colour camera.
 
 from __future__ import annotations
 
+import io
 import os
 import re
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -60,8 +62,13 @@ def read_pose(path: str | os.PathLike) -> np.ndarray:
     p = Path(path)
     if not p.is_file():
         raise DataError(p, "pose file not found", _FIX)
+    text = p.read_text(errors="replace")
+    if not text.strip():
+        raise DataError(p, "empty pose file (no matrix)", _FIX)
     try:
-        T = np.loadtxt(p, dtype=np.float64)
+        with warnings.catch_warnings():  # numpy's own warnings would add lines to our one
+            warnings.simplefilter("ignore")
+            T = np.loadtxt(io.StringIO(text), dtype=np.float64)
     except ValueError as exc:
         raise DataError(p, f"not a text matrix ({exc})", _FIX) from exc
     if T.shape != (4, 4) or not np.all(np.isfinite(T)):

@@ -44,6 +44,13 @@ class FlowNetwork(nn.Module, ABC):
     def architecture(self) -> dict[str, Any]:
         return {}
 
+    def flow_levels(self) -> int:
+        """How many flows ``forward`` returns per direction (what ``w_scales`` may weigh). Default: counted on
+        one forward pass of a 64×64 pair."""
+        probe = torch.zeros(1, 3, 64, 64, device=next(self.parameters()).device)
+        with torch.no_grad():
+            return len(self(probe, probe, with_backward=False)[0])
+
     def feature_module(self) -> nn.Module:
         """The submodule that computes :meth:`features` (what the chairs bootstrap's phase A trains alone;
         f2depth.flow.bootstrap). Default: the whole network."""

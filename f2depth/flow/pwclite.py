@@ -127,6 +127,9 @@ class PWCLite(FlowNetwork):
         """
         return self.feature_pyramid_extractor(img.contiguous(memory_format=self.memory_format))
 
+    def flow_levels(self) -> int:
+        return N_FLOWS
+
     def feature_module(self) -> nn.Module:
         return self.feature_pyramid_extractor
 

@@ -100,14 +100,23 @@ def encode_ply(points: np.ndarray, colours: np.ndarray) -> bytes:
 def write_frame(out_dir: str | os.PathLike, name: str, depth: np.ndarray, rgb: np.ndarray,
                 K: np.ndarray | None = None) -> list[Path]:
     """Write the outputs of one frame (module docstring); the PLY only when ``K`` is given. depth (H,W)
-    metres, rgb (H,W,3) uint8. Returns the paths written."""
+    metres, rgb (H,W,3) uint8. Returns the paths written: all of them, or none when one fails (each file
+    atomically, and the ones already written removed)."""
     out = Path(out_dir)
     depth = np.asarray(depth, np.float32)
     paths = [out / f"{name}{SUFFIXES[k]}" for k in ("mm", "npy", "color")]
-    imwrite(paths[0], depth_to_mm(depth))
-    save_npy(paths[1], depth)
-    imwrite(paths[2], colorize_depth(depth))
+    writers = [lambda p: imwrite(p, depth_to_mm(depth)), lambda p: save_npy(p, depth),
+               lambda p: imwrite(p, colorize_depth(depth))]
     if K is not None:
         paths.append(out / f"{name}{SUFFIXES['ply']}")
-        write_bytes(paths[-1], encode_ply(*point_cloud(depth, rgb, K)))
+        writers.append(lambda p: write_bytes(p, encode_ply(*point_cloud(depth, rgb, K))))
+    written: list[Path] = []
+    try:  # all of a frame's files or none: a failure (a full disk) removes the ones already written
+        for path, write in zip(paths, writers):
+            write(path)
+            written.append(path)
+    except BaseException:
+        for path in written:
+            path.unlink(missing_ok=True)
+        raise
     return paths

@@ -93,13 +93,15 @@ class PredictSettings:
 
 
 def run_predict(frames: Iterable[Frame], predictor: Predictor, settings: PredictSettings,
-                total: int | None = None, input_desc: str = "") -> dict[str, Any]:
+                total: int | None = None, input_desc: str = "",
+                renamed: dict[str, str] | None = None) -> dict[str, Any]:
     """Predict every frame and write its files (outputs module) as soon as its batch is done, so an
     interrupted run leaves complete files only; finally ``predict.json`` (the run's summary). Returns it.
 
     The output folder is created and checked to be writable before anything is predicted. ``total``:
     the number of frames the source announces; fewer decoded frames (a truncated video) are reported in
-    the summary's ``warnings``.
+    the summary's ``warnings``. ``renamed``: input → output stem where inputs share a stem (a.png, a.jpg;
+    the source's ``renamed``), recorded in the summary and said in one warning.
     """
     if settings.scale is not None and settings.scale_from is not None:
         raise ValueError("give scale or scale_from, not both")
@@ -126,6 +128,11 @@ def run_predict(frames: Iterable[Frame], predictor: Predictor, settings: Predict
     finally:
         bar.close()
     warnings = []
+    if renamed:
+        first = next(iter(renamed.items()))
+        warnings.append(f"{len(renamed)} input(s) share a file stem with another, so their outputs are "
+                        f"named <stem>_<extension> (e.g. {first[0]} → {first[1]}_depth.npy); predict.json "
+                        "lists them under 'renamed'")
     if total and count < total:  # a video whose container announces more frames than decode
         warnings.append(f"{input_desc or 'the input'}: only {count} of the {total} frames its container "
                         f"announces could be decoded (a truncated or damaged file?); wrote those {count}")
@@ -139,6 +146,9 @@ def run_predict(frames: Iterable[Frame], predictor: Predictor, settings: Predict
         "intrinsics": ({f"{h}x{w}": intrinsics(h, w, **settings.K_args).tolist() for h, w in sorted(sizes)}
                        if settings.ply else None),
         "files": {k: "<name>" + v for k, v in SUFFIXES.items() if k != "ply" or settings.ply},
+        "renamed": dict(renamed or {}),
+        "orientation": "EXIF orientation applied (OpenCV): depth maps are in the orientation images are "
+                       "shown in; a video's rotation metadata as OpenCV applies it",
         "warnings": warnings,
     }
     write_json(out_dir / "predict.json", summary)

@@ -78,9 +78,25 @@ def list_images(folder: str | os.PathLike) -> list[Path]:
 
 
 def output_names(paths: list[Path]) -> list[str]:
-    """Output stems: the file stem, or ``<stem>_<ext>`` where two inputs share a stem (a.png, a.jpg)."""
-    stems = [p.stem for p in paths]
-    return [s if stems.count(s) == 1 else f"{s}_{p.suffix[1:].lower()}" for s, p in zip(stems, paths)]
+    """Output stems, unique even where the file system ignores case: the file stem where no other input
+    has it (compared case-insensitively), else ``<stem>_<ext>`` (a.png, a.jpg → a_png, a_jpg), and
+    ``_2``, ``_3``, … after that where it is still taken (a.png, a.PNG → a_png, a_png_2; b.jpg beside
+    b_jpg.png → b_jpg_2). Deterministic in the order given."""
+    key = str.casefold
+    counts: dict[str, int] = {}
+    for p in paths:
+        counts[key(p.stem)] = counts.get(key(p.stem), 0) + 1
+    names: list[str | None] = [p.stem if counts[key(p.stem)] == 1 else None for p in paths]
+    taken = {key(n) for n in names if n is not None}
+    for i, p in enumerate(paths):
+        if names[i] is None:
+            base = f"{p.stem}_{p.suffix[1:].lower()}"
+            name, k = base, 2
+            while key(name) in taken:
+                name, k = f"{base}_{k}", k + 1
+            names[i] = name
+            taken.add(key(name))
+    return [str(n) for n in names]
 
 
 class ImageSource:
@@ -91,6 +107,8 @@ class ImageSource:
     def __init__(self, paths: list[Path]) -> None:
         self.paths = list(paths)
         self.names = output_names(self.paths)
+        #: input path → output stem, for the inputs whose stem another input shares (output_names)
+        self.renamed = {str(p): n for p, n in zip(self.paths, self.names) if n != p.stem}
 
     def __len__(self) -> int:
         return len(self.paths)
@@ -113,6 +131,7 @@ class VideoSource:
 
     def __init__(self, path: str | os.PathLike) -> None:
         self.path = Path(path)
+        self.renamed: dict[str, str] = {}  # frames are numbered: no stems to share
         if not self.path.is_file():
             raise DataError(self.path, "video not found", "check --input")
         with captured_stderr_fd() as chatter:
@@ -150,6 +169,15 @@ class VideoSource:
                 index += 1
         finally:
             cap.release()
+
+
+def check_output_apart(source: str | os.PathLike, output: str | os.PathLike) -> None:
+    """Refuse an output folder that is the input folder (also through links): our depth maps and colour
+    maps are PNGs that a second run would read as photos. DataError naming the output."""
+    src, out = Path(source), Path(output)
+    if src.is_dir() and out.exists() and out.resolve() == src.resolve():
+        raise DataError(out, "the output folder is the input folder, so a later run would read these depth "
+                             "and colour maps as photos", f"give --output another folder (e.g. {src}_depth)")
 
 
 def open_source(path: str | os.PathLike) -> ImageSource | VideoSource:

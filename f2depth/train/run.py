@@ -45,11 +45,12 @@ log = logging.getLogger(__name__)
 
 
 def run_fingerprint(s: TrainSettings, seed: int) -> str:
-    """What a resumable state must match: the settings that shape training and the input files."""
+    """What a resumable state must match: the settings that shape training and the contents of the input
+    files (the whole prepared set: its images and superpixels too, not only its tables)."""
     ignored = ("seeds", "workers", "resume_dir", "device", "diagnostic_tuples", "val_every")
     settings = {k: v for k, v in s.as_dict().items() if k not in ignored}
     settings["seed"] = seed
-    files = {"tuples": Path(s.prepared) / "tuples.csv", "camera": Path(s.prepared) / "camera.json",
+    files = {"prepared": s.prepared,  # the folder's contents: images, superpixels, tables, camera
              "keypoints": s.keypoints_file, "flow_model": s.flow_model, "imagenet": s.imagenet_weights,
              "pose_priors": Path(s.poses) / "priors.json" if s.poses else None}
     return fingerprint(settings, files)
@@ -117,6 +118,7 @@ def train_variant(
     priors = PosePriors(s.poses) if s.pose_prior == "geometric" else None
     dataset = TupleDataset(prepared, s.keypoints_file, DataConfig(num_points=s.num_points, augment=s.augment),
                            priors=priors)
+    _check_batch(s, len(dataset), ctx.world_size)
     teacher = FlowTeacher.load(s.flow_model, ctx.device) if s.flow_model else None
     validator = make_validator(s.nyu_labeled, s.nyu_splits, h, w, ctx.device, gt=s.val_gt, crop=s.val_crop,
                                max_images=s.val_max_images) if ctx.is_main else None
@@ -189,6 +191,20 @@ def train_variant(
         validator.close()
     barrier(ctx)
     return VariantRun(metrics, main_history)
+
+
+def _check_batch(s: TrainSettings, tuples: int, world_size: int) -> None:
+    """Before any model is built: one global batch of ``train_depth.batch_size`` must fit the training
+    tuples and divide among the processes (DataError naming tuples.csv, one line)."""
+    where = Path(s.prepared) / "tuples.csv"
+    if s.batch_size % world_size:
+        raise DataError(where, f"train_depth.batch_size {s.batch_size} does not divide among the "
+                               f"{world_size} processes of this run",
+                        f"set train_depth.batch_size to a multiple of {world_size} (each process reads "
+                        "batch_size / processes items)")
+    if tuples < s.batch_size:
+        raise DataError(where, f"{tuples} training tuples are fewer than one batch of train_depth.batch_size "
+                               f"{s.batch_size}", "lower train_depth.batch_size or prepare more frames")
 
 
 def _measure(validator, truth: TrainTruth | None, device):

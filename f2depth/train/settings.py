@@ -75,6 +75,15 @@ class TrainSettings:
     def __post_init__(self) -> None:
         if self.pose_prior not in POSE_PRIORS:
             raise ValueError(f"pose_prior must be one of {', '.join(POSE_PRIORS)}, got {self.pose_prior!r}")
+        if not self.lr or any(r <= 0 for r in self.lr):
+            raise ValueError(f"lr must be a list of positive learning rates, got {list(self.lr)}")
+        if len(self.lr) != len(self.lr_epochs):
+            raise ValueError(f"lr has {len(self.lr)} rates but lr_epochs {len(self.lr_epochs)} phases; give "
+                             "one epoch count per rate (the paper: lr [1e-4, 1e-5, 1e-6], lr_epochs "
+                             "[27, 15, 2])")
+        if any(e < 0 for e in self.lr_epochs) or sum(self.lr_epochs) == 0:
+            raise ValueError("lr_epochs must be epoch counts >= 0 with a positive sum, got "
+                             f"{list(self.lr_epochs)}")
         if not self.seeds or len(set(self.seeds)) != len(self.seeds):
             raise ValueError(f"seeds must be a non-empty list of distinct integers, got {list(self.seeds)}")
         if self.init_depth is not None:
