@@ -147,3 +147,56 @@ def test_flow_finetune_killed_with_9_resumes_to_the_same_weights(tmp_path):
     (killed, killed_metrics), (whole, _) = runs["killed"], runs["whole"]
     assert killed_metrics["resumed_from"] >= 1
     assert all(torch.equal(killed[k], whole[k]) for k in whole)
+
+
+def test_keypoints_killed_with_9_redo_the_same_file(tmp_path):
+    """kill -9 in the middle of the `keypoints` stage leaves no output that looks valid, and the re-run
+    writes the file an uninterrupted run writes, byte for byte."""
+    import yaml
+    from test_keypoints_stage import fake_prepared
+
+    params = {"data": {"prepared": "data/prepared", "keypoints": "data/keypoints"},
+              "keypoints": {"source": "prepared", "preset": "p2net", "options": {}, "sequence": False,
+                            "workers": 1, "overlays": 1, "overlay_dir": "reports/figures/keypoints"}}
+    command = [sys.executable, str(ROOT / "stages" / "keypoints.py"), "params.yaml"]
+    out = {}
+    for name in ("killed", "whole"):
+        root = tmp_path / name
+        fake_prepared(root / "data" / "prepared", frames_per_scene=40)
+        (root / "params.yaml").write_text(yaml.safe_dump(params))
+        if name == "killed":
+            proc = subprocess.Popen(command, cwd=root, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                                    text=True)
+            deadline = time.monotonic() + 120
+            while "frame" not in (line := proc.stderr.readline()):  # its progress bar: selection under way
+                assert line or proc.poll() is None, "ended before it could be killed"
+                assert time.monotonic() < deadline
+            proc.send_signal(signal.SIGKILL)
+            proc.wait()
+            assert not (root / "data" / "keypoints" / "train.npz").exists()
+        subprocess.run(command, cwd=root, check=True, capture_output=True, timeout=300)
+        out[name] = (root / "data" / "keypoints" / "train.npz").read_bytes()
+        leftovers = [p.name for p in (root / "data" / "keypoints").iterdir() if p.name != "train.npz"]
+        assert leftovers == [], leftovers
+    assert out["killed"] == out["whole"]
+
+
+def test_a_locked_mlflow_store_only_warns(tmp_path, monkeypatch, caplog):
+    import sqlite3
+
+    db = tmp_path / "mlflow.db"
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", f"sqlite:///{db}")
+    monkeypatch.setenv("F2DEPTH_MLFLOW", "1")
+    with tracking.stage_run("first", {"seed": 0}) as run:  # creates the store
+        run.log_metrics({"x": 1.0}, step=0)
+    holder = sqlite3.connect(db, timeout=0.1)
+    holder.execute("BEGIN EXCLUSIVE")  # another process holds the database
+    try:
+        ran = []
+        with tracking.stage_run("second", {"seed": 0}) as run:
+            run.log_metrics({"x": 2.0}, step=0)
+            ran.append(True)
+    finally:
+        holder.rollback()
+        holder.close()
+    assert ran == [True] and "MLflow mirror off" in caplog.text
