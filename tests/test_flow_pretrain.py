@@ -159,6 +159,17 @@ def run_stage(tmp_path: Path, monkeypatch, **section) -> dict:
     keys of ``flow_pretrain``; returns its metrics."""
     monkeypatch.chdir(tmp_path)
     monkeypatch.setenv("F2DEPTH_MLFLOW", "0")
+    write_stage_inputs(tmp_path, **section)
+    spec = importlib.util.spec_from_file_location("flow_pretrain_stage", STAGE)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    module.main(["flow_pretrain.py", str(tmp_path / "params.yaml")])
+    return json.loads((tmp_path / "metrics" / "flow_pretrain.json").read_text())
+
+
+def write_stage_inputs(tmp_path: Path, **section) -> Path:
+    """:func:`make_set`'s sequences and a tiny params.yaml in ``tmp_path`` (``section``: keys of
+    ``flow_pretrain``); returns the params file."""
     make_set(tmp_path / "data" / "animated")
     params = {
         "seed": 0, "device": "cpu", "allow_random_init": True,
@@ -171,11 +182,7 @@ def run_stage(tmp_path: Path, monkeypatch, **section) -> dict:
                           "chairs": tiny_chairs(), **section},
     }
     (tmp_path / "params.yaml").write_text(yaml.safe_dump(params))
-    spec = importlib.util.spec_from_file_location("flow_pretrain_stage", STAGE)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    module.main(["flow_pretrain.py", str(tmp_path / "params.yaml")])
-    return json.loads((tmp_path / "metrics" / "flow_pretrain.json").read_text())
+    return tmp_path / "params.yaml"
 
 
 def test_stage_end_to_end(tmp_path, monkeypatch):

@@ -200,3 +200,86 @@ def test_a_locked_mlflow_store_only_warns(tmp_path, monkeypatch, caplog):
         holder.rollback()
         holder.close()
     assert ran == [True] and "MLflow mirror off" in caplog.text
+
+
+def test_flow_pretrain_killed_with_9_resumes_to_the_same_weights(tmp_path):
+    """The chairs route (the CPU default), killed with -9 once its first epoch's state is written, then run
+    again: the teacher equals an uninterrupted run's, bit for bit."""
+    from test_flow_pretrain import STAGE, tiny_chairs, write_stage_inputs
+
+    from f2depth.flow.checkpoint import load_flow_model
+
+    env = {**os.environ, "F2DEPTH_MLFLOW": "0", "OMP_NUM_THREADS": "1"}
+    chairs = {**tiny_chairs(), "feature_epochs": 1, "epochs": 3, "steps_per_epoch": 3}
+    weights = {}
+    for name in ("killed", "whole"):
+        root = tmp_path / name
+        root.mkdir()
+        write_stage_inputs(root, source="chairs", passes=["clean"], chairs=chairs)
+        command = [sys.executable, str(STAGE), str(root / "params.yaml")]
+        if name == "killed":
+            proc = subprocess.Popen(command, cwd=root, env=env, stdout=subprocess.DEVNULL,
+                                    stderr=subprocess.DEVNULL)
+            deadline = time.monotonic() + 300
+            while not [p for p in root.glob("tmp/flow_pretrain/*.pt") if not p.name.startswith(".")]:
+                assert proc.poll() is None and time.monotonic() < deadline, "finished before it was killed"
+                time.sleep(0.02)
+            proc.send_signal(signal.SIGKILL)
+            proc.wait()
+            assert not (root / "models" / "flow_pretrained.pt").exists()
+        subprocess.run(command, cwd=root, env=env, check=True, capture_output=True, timeout=300)
+        weights[name] = load_flow_model(root / "models" / "flow_pretrained.pt").state_dict()
+        training = json.loads((root / "metrics" / "flow_pretrain.json").read_text())["training"]
+        assert (training["resumed_from"] >= 1) == (name == "killed")
+    assert all(torch.equal(weights["killed"][k], weights["whole"][k]) for k in weights["whole"])
+
+
+@pytest.mark.parametrize("kind", ["depth", "flow"])
+def test_a_truncated_model_file_is_one_line(ckpt, tmp_path, capfd, kind):
+    from f2depth.data.errors import CheckpointError
+    from f2depth.flow.checkpoint import load_flow_model, save_flow_model
+    from f2depth.flow.pwclite import PWCLite
+
+    if kind == "depth":
+        whole = Path(ckpt).read_bytes()
+        (tmp_path / "cut.pt").write_bytes(whole[: len(whole) // 3])
+        inference_data.write_images(tmp_path / "in", 1)
+        code = main(["predict", "--model", str(tmp_path / "cut.pt"), "--input", str(tmp_path / "in"),
+                     "--output", str(tmp_path / "out")])
+        err = capfd.readouterr().err.splitlines()
+        assert code == 1 and len(err) == 1 and str(tmp_path / "cut.pt") in err[0], err
+    else:
+        save_flow_model(tmp_path / "flow.pt", PWCLite())
+        whole = (tmp_path / "flow.pt").read_bytes()
+        (tmp_path / "cut.pt").write_bytes(whole[: len(whole) // 3])
+        with pytest.raises(CheckpointError, match=rf"^{tmp_path / 'cut.pt'}: "):
+            load_flow_model(tmp_path / "cut.pt")
+
+
+def test_two_thousand_images_stream_in_bounded_memory(ckpt, tmp_path):
+    """`predict` streams a folder: a frame's image and depth are dropped once its files are written, so
+    memory does not grow with the number of frames (2,000 frames that together are ~170 MB of pixels)."""
+    import resource
+
+    from f2depth.inference.backends import TorchBackend
+    from f2depth.inference.predict import Predictor, PredictSettings, run_predict
+    from f2depth.inference.sources import open_source
+
+    folder = tmp_path / "in"
+    folder.mkdir()
+    for i in range(2000):
+        cv2.imwrite(str(folder / f"f{i:04d}.png"), np.full((96, 128, 3), i % 251, np.uint8))
+    frames = iter(open_source(folder))
+    predictor = Predictor(TorchBackend.from_checkpoint(ckpt, "cpu"))
+    settings = PredictSettings(tmp_path / "out", batch_size=8, progress=False)
+
+    def head(n):
+        for _ in range(n):
+            yield next(frames)
+
+    run_predict(head(200), predictor, settings)
+    peak_after_200 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss  # KiB on Linux
+    summary = run_predict(head(1800), predictor, settings)
+    growth_mib = (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - peak_after_200) / 1024
+    assert summary["frames"] == 1800 and len(list((tmp_path / "out").glob("*_depth.npy"))) == 2000
+    assert growth_mib < 40, f"peak memory grew by {growth_mib:.0f} MiB over 1,800 more frames"
