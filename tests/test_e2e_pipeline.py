@@ -106,15 +106,17 @@ def run(cmd: list[str], cwd: Path, env: dict[str, str], timeout: float = 600) ->
     return proc
 
 
-@pytest.mark.e2e
-def test_dvc_repro_runs_every_stage_then_is_up_to_date(tmp_path):
+def tiny_repo(tmp_path: Path, overrides: dict[str, object] | None = None
+              ) -> tuple[Path, dict, dict[str, str]]:
+    """A fresh git + DVC repository in ``tmp_path / "repo"`` with this repository's pipeline, code and
+    cache settings and the TINY params (plus ``overrides``); returns (repo, params, env)."""
     repo = tmp_path / "repo"
     repo.mkdir()
     ignore = shutil.ignore_patterns("__pycache__", "*.pyc")
     for name in COPY:
         src = ROOT / name
         (shutil.copytree(src, repo / name, ignore=ignore) if src.is_dir() else shutil.copy2(src, repo / name))
-    params = tiny_params(yaml.safe_load((ROOT / "params.yaml").read_text()), TINY)
+    params = tiny_params(yaml.safe_load((ROOT / "params.yaml").read_text()), {**TINY, **(overrides or {})})
     (repo / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False, allow_unicode=True))
     env = {**os.environ, "PATH": f"{BIN}{os.pathsep}{os.environ.get('PATH', '')}", "F2DEPTH_MLFLOW": "0",
            "PYTHONPATH": str(repo), "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
@@ -126,6 +128,12 @@ def test_dvc_repro_runs_every_stage_then_is_up_to_date(tmp_path):
     run([str(BIN / "dvc"), "config", "core.analytics", "false"], repo, env)
     run(git + ["add", "-A"], repo, env)
     run(git + ["commit", "-q", "-m", "tiny pipeline"], repo, env)
+    return repo, params, env
+
+
+@pytest.mark.e2e
+def test_dvc_repro_runs_every_stage_then_is_up_to_date(tmp_path):
+    repo, params, env = tiny_repo(tmp_path)
 
     first = run([str(BIN / "dvc"), "repro"], repo, env, timeout=900)
     stages = yaml.safe_load((repo / "dvc.lock").read_text())["stages"]

@@ -44,7 +44,9 @@ def _cameras_csv(s: ScenePoses) -> str:
 def write_poses(out_dir: str | os.PathLike, scenes: dict[str, ScenePoses],
                 priors: dict[str, tuple[PairPrior, PairPrior]], scene_of: dict[str, str],
                 config: PosesConfig) -> None:
-    """Write the folder in a temporary sibling and swap it into place (the old one stays until then)."""
+    """Write the folder in a temporary sibling and swap it into place (the old one stays until then). No
+    timing goes in (metrics/poses.json has it), so the same inputs give the same bytes and DVC does not
+    re-run the stages downstream after an identical re-run."""
     with atomic_dir(out_dir) as tmp:
         for name, s in scenes.items():
             write_text(tmp / "cameras" / f"{name}.csv", _cameras_csv(s))
@@ -53,7 +55,7 @@ def write_poses(out_dir: str | os.PathLike, scenes: dict[str, ScenePoses],
             "min_registered_share": config.min_registered_share, "min_scene_points": config.min_scene_points,
             "min_shared_points": config.min_shared_points,
             "scenes": {name: {"frames": len(s.raw_files), "registered": int(s.registered.sum()),
-                              "points": s.points, "tracks": s.tracks, "seconds": s.seconds,
+                              "points": s.points, "tracks": s.tracks,
                               "sound": s.sound(config.min_registered_share, config.min_scene_points)}
                        for name, s in scenes.items()},
             "tuples": {tid: {"scene": scene_of[tid], "prev": _pair(prev), "next": _pair(nxt)}
