@@ -98,11 +98,21 @@ def fingerprint(settings: Mapping[str, Any],
                 files: Mapping[str, str | os.PathLike | None] | None = None) -> Fingerprint:
     """sha256 of the JSON of ``settings`` plus the sha256 of each named file or folder (its contents,
     :func:`file_digest`; None = no file). ``.parts``: the digest of each setting and each file."""
+    return fingerprints({None: settings}, files)[None]
+
+
+def fingerprints(runs: Mapping[Any, Mapping[str, Any]],
+                 files: Mapping[str, str | os.PathLike | None] | None = None) -> dict[Any, Fingerprint]:
+    """:func:`fingerprint` of each run's settings (``runs``: key → settings) over the same input files,
+    which are read once."""
     digests = {k: file_digest(v) if v else None for k, v in (files or {}).items()}
-    fp = Fingerprint(_digest({"settings": dict(settings), "files": digests}))
-    fp.parts = {**{f"setting {k}": _digest(v) for k, v in settings.items()},
-                **{f"input {k}": str(v) for k, v in digests.items()}}
-    return fp
+    out = {}
+    for key, settings in runs.items():
+        fp = Fingerprint(_digest({"settings": dict(settings), "files": digests}))
+        fp.parts = {**{f"setting {k}": _digest(v) for k, v in settings.items()},
+                    **{f"input {k}": str(v) for k, v in digests.items()}}
+        out[key] = fp
+    return out
 
 
 def file_digest(path: str | os.PathLike) -> str:

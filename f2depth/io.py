@@ -44,22 +44,17 @@ FULL_DISK_BYTES = 1 << 20
 def no_space(path: str | os.PathLike, exc: BaseException) -> OSError | None:
     """The error to raise instead of ``exc`` when writing ``path`` failed because its disk is full: an
     ``OSError(ENOSPC)`` whose message names the file, the free space and the fix; else None."""
-    if isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EDQUOT):
-        full = True
-    elif isinstance(exc, (OSError, RuntimeError)):
-        try:
-            full = shutil.disk_usage(Path(path).parent).free < FULL_DISK_BYTES
-        except OSError:
-            full = False
-    else:
-        full = False
-    if not full:
+    if not isinstance(exc, (OSError, RuntimeError)):
         return None
     try:
-        free = f"{shutil.disk_usage(Path(path).parent).free / 1e6:.1f} MB free"
+        free: int | None = shutil.disk_usage(Path(path).parent).free
     except OSError:
-        free = "free space unknown"
-    return OSError(errno.ENOSPC, f"no space left on device ({free}); nothing half-written was kept: free "
+        free = None
+    said = isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EDQUOT)
+    if not said and (free is None or free >= FULL_DISK_BYTES):
+        return None
+    room = f"{free / 1e6:.1f} MB free" if free is not None else "free space unknown"
+    return OSError(errno.ENOSPC, f"no space left on device ({room}); nothing half-written was kept: free "
                                  "some space or write to another disk", str(path))
 
 

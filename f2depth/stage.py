@@ -20,6 +20,12 @@ from f2depth.params import ParamsError
 from f2depth.signals import Terminated, sigterm_as_interrupt
 
 
+def _say(name: str, text: str) -> None:
+    """One line on stderr, from rank 0 only: under ``torchrun`` every rank fails alike."""
+    if os.environ.get("RANK", "0") == "0":
+        sys.stderr.write(f"{name}: {text}\n")
+
+
 def run_stage(name: str, main: Callable[[list[str]], object], argv: Sequence[str]) -> None:
     """Call ``main(argv)``; a :class:`ParamsError`, :class:`DataError` or ``FloatingPointError`` becomes
     ``"<name>: <message>"`` on stderr and exit status 1 (other exceptions are bugs: they keep their
@@ -28,19 +34,15 @@ def run_stage(name: str, main: Callable[[list[str]], object], argv: Sequence[str
         with sigterm_as_interrupt():
             main(list(argv))
     except KeyboardInterrupt as exc:  # Ctrl-C or SIGTERM: the atomic writers have cleaned up on the way out
-        if os.environ.get("RANK", "0") == "0":
-            how = "terminated (SIGTERM)" if isinstance(exc, Terminated) else "interrupted"
-            sys.stderr.write(f"{name}: {how}; no output was half-written, and a stage that keeps a resume "
-                             "state continues from its last completed epoch when run again\n")
+        how = "terminated (SIGTERM)" if isinstance(exc, Terminated) else "interrupted"
+        _say(name, f"{how}; no output was half-written, and a stage that keeps a resume state continues from "
+                   "its last completed epoch when run again")
         raise SystemExit(143 if isinstance(exc, Terminated) else 130) from None
     except (ParamsError, DataError, FloatingPointError) as exc:
-        if os.environ.get("RANK", "0") == "0":  # under torchrun every rank fails alike: say it once
-            sys.stderr.write(f"{name}: {exc}\n")
+        _say(name, str(exc))
         raise SystemExit(1) from None
     except OSError as exc:
         if exc.errno not in (errno.ENOSPC, errno.EDQUOT):
             raise
-        if os.environ.get("RANK", "0") == "0":  # a full disk (f2depth.io.no_space): the file and the fix
-            where = f"{exc.filename}: " if exc.filename else ""
-            sys.stderr.write(f"{name}: {where}{exc.strerror}\n")
+        _say(name, f"{exc.filename}: {exc.strerror}" if exc.filename else str(exc.strerror))  # f2depth.io
         raise SystemExit(1) from None

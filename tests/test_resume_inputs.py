@@ -18,7 +18,7 @@ import train_fakes
 from f2depth import params as P
 from f2depth import tracking
 from f2depth.epochs import fingerprint, load_state, save_state
-from f2depth.train.run import resume_states, run_fingerprint, train_variant
+from f2depth.train.run import resume_states, run_fingerprints, train_variant
 from f2depth.train.settings import settings_from_params
 
 
@@ -45,7 +45,7 @@ def interrupted_then_rerun(tmp_path, s, edit, caplog):
     with pytest.raises(Interrupt):
         train_variant(s, tmp_path / "build1", progress=False,
                       open_run=lambda seed: contextlib.nullcontext(StopAfterFirstEpoch()))
-    assert load_state(resume_states(s)[0], run_fingerprint(s, 0))[0]["epoch"] == 1  # resumable as it is
+    assert load_state(resume_states(s)[0], run_fingerprints(s)[0])[0]["epoch"] == 1  # resumable as it is
     edit()
     with caplog.at_level(logging.WARNING):
         run = train_variant(s, tmp_path / "build2", progress=False)

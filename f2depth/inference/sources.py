@@ -11,6 +11,7 @@ import math
 import os
 import sys
 import tempfile
+from collections import Counter
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -82,21 +83,18 @@ def output_names(paths: list[Path]) -> list[str]:
     has it (compared case-insensitively), else ``<stem>_<ext>`` (a.png, a.jpg → a_png, a_jpg), and
     ``_2``, ``_3``, … after that where it is still taken (a.png, a.PNG → a_png, a_png_2; b.jpg beside
     b_jpg.png → b_jpg_2). Deterministic in the order given."""
-    key = str.casefold
-    counts: dict[str, int] = {}
-    for p in paths:
-        counts[key(p.stem)] = counts.get(key(p.stem), 0) + 1
-    names: list[str | None] = [p.stem if counts[key(p.stem)] == 1 else None for p in paths]
-    taken = {key(n) for n in names if n is not None}
-    for i, p in enumerate(paths):
-        if names[i] is None:
-            base = f"{p.stem}_{p.suffix[1:].lower()}"
-            name, k = base, 2
-            while key(name) in taken:
-                name, k = f"{base}_{k}", k + 1
-            names[i] = name
-            taken.add(key(name))
-    return [str(n) for n in names]
+    counts = Counter(p.stem.casefold() for p in paths)
+    unique = [counts[p.stem.casefold()] == 1 for p in paths]
+    taken = {p.stem.casefold() for p, u in zip(paths, unique) if u}
+    names = []
+    for p, u in zip(paths, unique):
+        name = p.stem if u else f"{p.stem}_{p.suffix[1:].lower()}"
+        base, k = name, 2
+        while not u and name.casefold() in taken:
+            name, k = f"{base}_{k}", k + 1
+        taken.add(name.casefold())
+        names.append(name)
+    return names
 
 
 class ImageSource:

@@ -148,6 +148,20 @@ def epoch_order(n: int, seed: int, epoch: int) -> list[int]:
     return [int(i) for i in torch.randperm(n, generator=g)]
 
 
+def batch_problem(n: int, global_batch: int, world: int = 1) -> tuple[str, str] | None:
+    """``(problem, fix)`` when whole global batches of ``global_batch`` items cannot be drawn from ``n``
+    items and dealt to ``world`` processes; None when they can."""
+    if global_batch < 1 or global_batch % world:
+        return (f"train_depth.batch_size {global_batch} does not divide among the {world} processes of this "
+                "run (a global batch must be a positive multiple of the world size)",
+                f"set train_depth.batch_size to a multiple of {world} (each process reads batch_size / "
+                "processes items)")
+    if n < global_batch:
+        return (f"{n} training tuples are fewer than one batch of train_depth.batch_size {global_batch}",
+                "lower train_depth.batch_size or prepare more frames")
+    return None
+
+
 def rank_indices(n: int, seed: int, epoch: int, global_batch: int, rank: int = 0,
                  world: int = 1) -> list[int]:
     """Indices rank ``rank`` of ``world`` reads in ``epoch``, in order (DistributedSampler-like).
@@ -155,11 +169,8 @@ def rank_indices(n: int, seed: int, epoch: int, global_batch: int, rank: int = 0
     The epoch's order is cut to whole global batches (``drop_last``, as P²Net) and dealt round-robin,
     so the union of the ranks' k-th local batches is exactly the k-th global batch of a one-process run.
     """
-    if global_batch < 1 or global_batch % world:
-        raise ValueError(f"global batch {global_batch} must be a positive multiple of the world size {world}")
+    if problem := batch_problem(n, global_batch, world):
+        raise ValueError("; ".join(problem))
     order = epoch_order(n, seed, epoch)
     usable = (n // global_batch) * global_batch
-    if usable == 0:
-        raise ValueError(f"{n} training tuples are fewer than one batch of {global_batch}; lower "
-                         "train_depth.batch_size or prepare more frames")
     return order[:usable][rank::world]

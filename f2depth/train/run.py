@@ -28,14 +28,13 @@ from f2depth import tracking
 from f2depth.data.errors import DataError
 from f2depth.data.prepared import PreparedSet
 from f2depth.depth import DepthModel, DepthModelConfig, save_checkpoint
-from f2depth.epochs import fingerprint
+from f2depth.epochs import fingerprints
 from f2depth.poses.store import PosePriors
 from f2depth.superpixels import scaled_min_area
-from f2depth.train.data import DataConfig, TupleDataset
+from f2depth.train.data import DataConfig, TupleDataset, batch_problem
 from f2depth.train.diagnostics import DIAGNOSTIC_KEYS, TrainTruth, constant_depth_metrics, diagnose
 from f2depth.train.distributed import DistContext, barrier
 from f2depth.train.loop import FitResult, LoopConfig, fit, seed_everything
-from f2depth.train.schedule import LRSchedule
 from f2depth.train.settings import TrainSettings
 from f2depth.train.step import StepConfig
 from f2depth.train.teacher import FlowTeacher
@@ -44,16 +43,16 @@ from f2depth.train.validate import make_validator
 log = logging.getLogger(__name__)
 
 
-def run_fingerprint(s: TrainSettings, seed: int) -> str:
-    """What a resumable state must match: the settings that shape training and the contents of the input
-    files (the whole prepared set: its images and superpixels too, not only its tables)."""
+def run_fingerprints(s: TrainSettings) -> dict[int, str]:
+    """Seed → what its resumable state must match: the settings that shape training and the contents of
+    the input files (the whole prepared set: its images and superpixels too, not only its tables), which
+    are read once for all seeds."""
     ignored = ("seeds", "workers", "resume_dir", "device", "diagnostic_tuples", "val_every")
     settings = {k: v for k, v in s.as_dict().items() if k not in ignored}
-    settings["seed"] = seed
     files = {"prepared": s.prepared,  # the folder's contents: images, superpixels, tables, camera
              "keypoints": s.keypoints_file, "flow_model": s.flow_model, "imagenet": s.imagenet_weights,
              "pose_priors": Path(s.poses) / "priors.json" if s.poses else None}
-    return fingerprint(settings, files)
+    return fingerprints({seed: {**settings, "seed": seed} for seed in s.seeds}, files)
 
 
 def _summary(result: FitResult) -> dict[str, Any]:
@@ -118,7 +117,8 @@ def train_variant(
     priors = PosePriors(s.poses) if s.pose_prior == "geometric" else None
     dataset = TupleDataset(prepared, s.keypoints_file, DataConfig(num_points=s.num_points, augment=s.augment),
                            priors=priors)
-    _check_batch(s, len(dataset), ctx.world_size)
+    if problem := batch_problem(len(dataset), s.batch_size, ctx.world_size):  # before any model is built
+        raise DataError(Path(s.prepared) / "tuples.csv", *problem)
     teacher = FlowTeacher.load(s.flow_model, ctx.device) if s.flow_model else None
     validator = make_validator(s.nyu_labeled, s.nyu_splits, h, w, ctx.device, gt=s.val_gt, crop=s.val_crop,
                                max_images=s.val_max_images) if ctx.is_main else None
@@ -126,7 +126,7 @@ def train_variant(
              if ctx.is_main and s.diagnostic_tuples > 0 else None)
     floor = constant_depth_metrics(validator) if validator is not None else {}
     step_config = StepConfig(weights=s.weights, min_area=scaled_min_area(h, w), amp=s.amp)
-    schedule = LRSchedule.scaled(s.lr, s.lr_epochs, s.epochs)
+    schedule = s.schedule
     build_dir = Path(build_dir)
     if ctx.is_main:
         log.info("train_depth[%s]: %d tuples at %dx%d, batch %d, %d epochs (lr phases %s), flow model %s, "
@@ -139,6 +139,7 @@ def train_variant(
                     "of the pairs have one)" if priors is not None else ""))
     per_seed: list[dict[str, Any]] = []
     main_history: list[dict[str, Any]] = []
+    run_fps = run_fingerprints(s)
     for seed, state_file in zip(s.seeds, resume_states(s)):
         dataset.seed = seed
         seed_everything(seed)
@@ -155,7 +156,7 @@ def train_variant(
                 model, dataset, teacher, step_config,
                 LoopConfig(s.epochs, s.batch_size, schedule, seed=seed, workers=s.workers,
                            sync_bn=s.sync_bn, progress=progress, val_every=s.val_every),
-                ctx=ctx, checkpoint=state_file, resume=resume, fingerprint=run_fingerprint(s, seed),
+                ctx=ctx, checkpoint=state_file, resume=resume, fingerprint=run_fps[seed],
                 validate=_measure(validator, truth, ctx.device),
                 on_epoch=lambda row, run=run: run.log_metrics(
                     {k: v for k, v in row.items() if k != "epoch" and v is not None},
@@ -191,20 +192,6 @@ def train_variant(
         validator.close()
     barrier(ctx)
     return VariantRun(metrics, main_history)
-
-
-def _check_batch(s: TrainSettings, tuples: int, world_size: int) -> None:
-    """Before any model is built: one global batch of ``train_depth.batch_size`` must fit the training
-    tuples and divide among the processes (DataError naming tuples.csv, one line)."""
-    where = Path(s.prepared) / "tuples.csv"
-    if s.batch_size % world_size:
-        raise DataError(where, f"train_depth.batch_size {s.batch_size} does not divide among the "
-                               f"{world_size} processes of this run",
-                        f"set train_depth.batch_size to a multiple of {world_size} (each process reads "
-                        "batch_size / processes items)")
-    if tuples < s.batch_size:
-        raise DataError(where, f"{tuples} training tuples are fewer than one batch of train_depth.batch_size "
-                               f"{s.batch_size}", "lower train_depth.batch_size or prepare more frames")
 
 
 def _measure(validator, truth: TrainTruth | None, device):

@@ -24,7 +24,7 @@ def scale_phases(lr_epochs: Sequence[int], epochs: int) -> list[int]:
     """Phase lengths for a run of ``epochs`` epochs (module docstring). lr_epochs: the paper's lengths."""
     lengths = [int(e) for e in lr_epochs]
     if not lengths or any(e < 0 for e in lengths) or sum(lengths) == 0:
-        raise ValueError(f"lr_epochs must be non-negative epoch counts with a positive sum, got {lr_epochs}")
+        raise ValueError(f"lr_epochs must be epoch counts >= 0 with a positive sum, got {lengths}")
     if epochs < 0:
         raise ValueError(f"epochs must be >= 0, got {epochs}")
     total = sum(lengths)
@@ -54,13 +54,11 @@ class LRSchedule:
     @classmethod
     def scaled(cls, rates: Sequence[float], lr_epochs: Sequence[int], epochs: int) -> LRSchedule:
         """The paper's schedule (rates, lr_epochs) scaled to ``epochs`` (see ``scale_phases``)."""
+        if not rates or any(float(r) <= 0 for r in rates):
+            raise ValueError(f"lr must be a list of positive learning rates, got {list(rates)}")
         if len(rates) != len(lr_epochs):
-            raise ValueError(
-                f"train_depth.lr has {len(rates)} rates but train_depth.lr_epochs {len(lr_epochs)} phases; "
-                "give one epoch count per rate"
-            )
-        if any(float(r) <= 0 for r in rates):
-            raise ValueError(f"learning rates must be positive, got {list(rates)}")
+            raise ValueError(f"lr has {len(rates)} rates but lr_epochs {len(lr_epochs)} phases; give one "
+                             "epoch count per rate (the paper: lr [1e-4, 1e-5, 1e-6], lr_epochs [27, 15, 2])")
         return cls(tuple(float(r) for r in rates), tuple(scale_phases(lr_epochs, epochs)))
 
     @property

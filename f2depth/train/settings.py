@@ -19,6 +19,7 @@ from typing import Any
 from f2depth import params as P
 from f2depth.depth import DepthModelConfig
 from f2depth.depth.decoder import sigmoid_input_for_depth
+from f2depth.train.schedule import LRSchedule
 from f2depth.train.step import FLOW_TERMS, TERMS
 
 #: train_depth.pose_prior: none = the paper's PoseCNN; geometric = PoseCNN refines a prior from multi-view
@@ -75,15 +76,7 @@ class TrainSettings:
     def __post_init__(self) -> None:
         if self.pose_prior not in POSE_PRIORS:
             raise ValueError(f"pose_prior must be one of {', '.join(POSE_PRIORS)}, got {self.pose_prior!r}")
-        if not self.lr or any(r <= 0 for r in self.lr):
-            raise ValueError(f"lr must be a list of positive learning rates, got {list(self.lr)}")
-        if len(self.lr) != len(self.lr_epochs):
-            raise ValueError(f"lr has {len(self.lr)} rates but lr_epochs {len(self.lr_epochs)} phases; give "
-                             "one epoch count per rate (the paper: lr [1e-4, 1e-5, 1e-6], lr_epochs "
-                             "[27, 15, 2])")
-        if any(e < 0 for e in self.lr_epochs) or sum(self.lr_epochs) == 0:
-            raise ValueError("lr_epochs must be epoch counts >= 0 with a positive sum, got "
-                             f"{list(self.lr_epochs)}")
+        _ = self.schedule  # LRSchedule's rules check lr and lr_epochs (its errors name them)
         if not self.seeds or len(set(self.seeds)) != len(self.seeds):
             raise ValueError(f"seeds must be a non-empty list of distinct integers, got {list(self.seeds)}")
         if self.init_depth is not None:
@@ -96,6 +89,11 @@ class TrainSettings:
                 raise ValueError(f"init_depth must be null or a depth in metres strictly between {lo} and "
                                  f"{hi} (DepthCNN's range), got {self.init_depth!r}") from None
             object.__setattr__(self, "init_depth", float(self.init_depth))
+
+    @property
+    def schedule(self) -> LRSchedule:
+        """The paper's lr schedule (``lr``, ``lr_epochs``) scaled to ``epochs``."""
+        return LRSchedule.scaled(self.lr, self.lr_epochs, self.epochs)
 
     def as_dict(self) -> dict[str, Any]:
         d = dataclasses.asdict(self)
