@@ -161,6 +161,12 @@ def _add_network(p: argparse.ArgumentParser, required: bool = True) -> None:
     p.add_argument("--no-progress", action="store_true", help="no progress bar (default: bar on a terminal)")
 
 
+def _add_threads(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--threads", type=_positive_int, metavar="N",
+                   help="CPU threads of torch, OpenCV and onnxruntime (default: $OMP_NUM_THREADS, else the "
+                        "CPUs this process may use); on a shared machine give the free cores")
+
+
 def build_parser() -> argparse.ArgumentParser:
     about = "F2Depth: self-supervised indoor monocular depth. Use a trained model."
     parser = OneLineParser(prog="f2depth", description=about, epilog=EXIT_NOTE)
@@ -169,6 +175,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("predict", formatter_class=fmt, help="depth maps of an image, a folder or a video",
                        description=PREDICT_DESCRIPTION + "\n\n" + RELATIVE_NOTE, epilog=PREDICT_EPILOG)
+    _add_threads(p)
     _add_network(p)
     p.add_argument("--input", type=Path, required=True, metavar="PATH",
                    help="image, folder of images or video")
@@ -193,6 +200,7 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Each video or image folder becomes one scene of OUT (NYU-raw layout, "
                                    "camera.json, scenes.txt, ingest.json). Defaults: params.yaml's ingest "
                                    "section; the flags override it.")
+    _add_threads(p)
     p.add_argument("inputs", type=Path, nargs="+", metavar="INPUT", help="videos and/or folders of images")
     p.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder (replaced)")
     cam = p.add_mutually_exclusive_group()
@@ -213,6 +221,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("export", formatter_class=fmt, help="export the depth network (ONNX)",
                        description=EXPORT_DESCRIPTION, epilog=EXIT_NOTE)
+    _add_threads(p)
     p.add_argument("--model", type=Path, required=True, metavar="M", help="depth checkpoint (.pt)")
     p.add_argument("--format", choices=("onnx",), default="onnx", help="export format (onnx)")
     p.add_argument("--output", type=Path, required=True, metavar="F", help="output file (.onnx)")
@@ -227,6 +236,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("reconstruct", formatter_class=fmt, help="TSDF fusion of a posed sequence → mesh",
                        description=RECONSTRUCT_DESCRIPTION, epilog=EXIT_NOTE)
+    _add_threads(p)
     _add_network(p, required=False)
     p.add_argument("--sequence", type=Path, required=True, metavar="DIR",
                    help="7-Scenes <scene>/seq-XX folder, or a folder of the sequence's images")
@@ -267,10 +277,11 @@ def _cmd_predict(args: argparse.Namespace) -> int:
     from f2depth.inference.backends import load_backend
     from f2depth.inference.predict import Predictor, PredictSettings, run_predict
     from f2depth.inference.sources import check_output_apart, open_source
+    from f2depth.threads import budget
 
     check_output_apart(args.input, args.output)
     source = open_source(args.input)
-    backend = load_backend(args.model, args.onnx, args.device)
+    backend = load_backend(args.model, args.onnx, args.device, budget(args.threads))
     settings = PredictSettings(args.output, batch_size=args.batch_size, scale=args.scale,
                                scale_from=args.scale_from, ply=args.ply,
                                K_args={"fx": args.fx, "fy": args.fy, "cx": args.cx, "cy": args.cy},
@@ -334,6 +345,7 @@ def _cmd_reconstruct(args: argparse.Namespace) -> int:
     from f2depth.inference.reconstruct import ReconstructSettings, TSDFSettings, reconstruct
     from f2depth.inference.sequences import sevenscenes_sequence, synth_sequence
     from f2depth.io import write_json
+    from f2depth.threads import budget
 
     if args.depth_source == "predicted" and args.model is None and args.onnx is None:
         raise UsageError("give --model or --onnx (or --depth-source reference)")
@@ -350,7 +362,7 @@ def _cmd_reconstruct(args: argparse.Namespace) -> int:
         frames = sevenscenes_sequence(args.sequence, args.stride, args.max_frames)
     predictor = None
     if args.depth_source == "predicted":
-        backend = load_backend(args.model, args.onnx, args.device)
+        backend = load_backend(args.model, args.onnx, args.device, budget(args.threads))
         predictor = Predictor(backend, post_process=args.post_process)
     settings = ReconstructSettings(args.output, tsdf=tsdf, scaling=args.scaling, scale=args.scale,
                                    depth_source=args.depth_source, evaluate=args.evaluate,
@@ -380,6 +392,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; returns the exit code (argparse exits with 2 itself on usage errors, in one
     line)."""
     args = build_parser().parse_args(argv)
+    from f2depth import threads
     from f2depth.data.errors import DataError
     from f2depth.inference.export import ExportError
     from f2depth.inference.optional import MissingDependency
@@ -387,6 +400,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     from f2depth.signals import Terminated, sigterm_as_interrupt
 
     try:
+        threads.use(args.threads)
         with sigterm_as_interrupt():  # SIGTERM ends the run as Ctrl-C does
             return args.func(args)
     except UsageError as exc:

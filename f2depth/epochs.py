@@ -200,9 +200,14 @@ class EpochLoop:
     fingerprint: str = ""
     main: bool = True
     progress: bool = True
+    state_every: int = 1  # write the resume file after every N-th epoch and after the last
     history: list[dict[str, Any]] = field(default_factory=list)
     resumed_from: int = 0  # finished epochs taken from the state file (0 = fresh start)
     note: str = ""
+
+    def saves_after(self, epoch: int) -> bool:
+        """Whether the resume file is written after ``epoch`` (1-based): each ``state_every``-th, the last."""
+        return epoch % self.state_every == 0 or epoch == self.epochs
 
     def restore(self, enabled: bool = True) -> int:
         """Load the parts, epoch and history of a matching state file → the finished epochs (0 = fresh)."""
@@ -263,7 +268,7 @@ class EpochLoop:
             if self.main and end_epoch is not None:
                 row.update(end_epoch(row))
             self.history.append(row)
-            if self.main and self.state_file is not None:
+            if self.main and self.state_file is not None and self.saves_after(epoch):
                 save_state(self.state_file, run=self.run, fingerprint=self.fingerprint, epoch=epoch,
                            history=self.history, parts=self.parts)
             if barrier is not None:

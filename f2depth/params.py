@@ -141,6 +141,11 @@ def device(params: dict[str, Any]) -> str:
         raise ParamsError(f"{_file(params)}: {exc}") from None
 
 
+def threads(params: dict[str, Any]) -> int | None:
+    """The ``threads`` key: torch's and OpenCV's thread budget (null: f2depth.threads chooses)."""
+    return value(params, "threads", int | None, min=1)
+
+
 def reject_unknown(path: str | os.PathLike, key: str, names: Any, known: Any, what: str = "keys") -> None:
     """Raise :class:`ParamsError` when ``names`` (the keys, or with ``what`` another word the entries, of the
     params value ``key``) has any that is not in ``known``: one line with a did-you-mean hint for each close

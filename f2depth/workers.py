@@ -16,6 +16,8 @@ from typing import Any
 import cv2
 from tqdm import tqdm
 
+from f2depth.threads import usable_cpus
+
 
 def init_worker() -> None:
     cv2.setNumThreads(1)
@@ -24,8 +26,9 @@ def init_worker() -> None:
 def map_jobs(fn: Callable[[Any], Any], jobs: Sequence[Any], workers: int, desc: str = "",
              progress: bool = False, size: Callable[[Any], int] = lambda job: 1) -> list[Any]:
     """``[fn(job) for job in jobs]`` in ``min(workers, len(jobs))`` processes (in this one when that is ≤ 1);
-    ``fn`` must be picklable (module level). The progress bar counts ``size(job)`` frames per job."""
-    n = min(workers, len(jobs))
+    ``fn`` must be picklable (module level). The progress bar counts ``size(job)`` frames per job. Never
+    more processes than the CPUs this process may use (f2depth.threads.usable_cpus)."""
+    n = min(workers, len(jobs), usable_cpus())
     with tqdm(total=sum(map(size, jobs)), desc=desc, unit="frame", disable=not progress) as bar, \
             contextlib.ExitStack() as stack:
         if n <= 1:

@@ -29,7 +29,7 @@ from typing import Literal
 import torch
 
 from f2depth import params as P
-from f2depth import tracking
+from f2depth import threads, tracking
 from f2depth.data.errors import DataError
 from f2depth.data.nyu_labeled import GT_KEYS
 from f2depth.data.samples import limit
@@ -49,7 +49,6 @@ class EvaluateStage:
     nyu_gt: Literal[GT_KEYS]
     sevenscenes_stride: int = field(metadata={"min": 1})
     max_images: int | None = field(metadata={"min": 1})  # per test set; null: all
-    threads: int | None = field(metadata={"min": 1})  # null: torch's default
 
 
 def config_from_params(p: dict) -> tuple[SuiteConfig, EvaluateStage]:
@@ -70,6 +69,7 @@ def main(argv: list[str]) -> None:
     ap.add_argument("--reports", default="reports/eval", help="folder of <variant>/ (details, CSV, figures)")
     args = ap.parse_args(argv[1:])
     p = P.load(args.params)
+    threads.use(P.threads(p))
     cfg, stage = config_from_params(p)
     if args.variant not in P.get(p, "variants"):
         raise P.ParamsError(f"{p['_file']}: no variant '{args.variant}' under `variants`")
@@ -80,8 +80,6 @@ def main(argv: list[str]) -> None:
     if missing:
         raise DataError(", ".join(missing), "not found", f"run `dvc repro train_depth@{args.variant}` "
                         "(train_depth.seeds lists the seeds to evaluate)")
-    if stage.threads:
-        torch.set_num_threads(stage.threads)
     # every seed's model before any work: a file that does not fit ends the stage before minutes of scoring
     models = [load_checkpoint(f, cfg.device, decoder_upsample=cfg.decoder_upsample).eval() for f in files]
     sets = load_sets(p, cfg.datasets, stage.max_images)

@@ -12,7 +12,7 @@ import sys
 from dataclasses import dataclass, field
 
 from f2depth import params as P
-from f2depth import tracking
+from f2depth import threads, tracking
 from f2depth.data.prepared import PreparedSet
 from f2depth.flow.checkpoint import load_flow_model
 from f2depth.flow.figures import comparison_rows, prediction_rows, render_flow_comparison
@@ -36,6 +36,7 @@ def config_from_params(p: dict) -> FigureParams:
 
 def main(argv: list[str]) -> None:
     p = P.load(argv[1] if len(argv) > 1 else P.DEFAULT_PARAMS)
+    threads.use(P.threads(p))
     cfg = config_from_params(p)
     holdout = P.value(p, "flow_finetune.holdout_scenes", int, min=0)
     losses = P.value(p, "flow_finetune.losses", tuple[str, ...])

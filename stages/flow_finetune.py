@@ -23,7 +23,7 @@ from typing import Literal
 import torch
 
 from f2depth import params as P
-from f2depth import tracking
+from f2depth import threads, tracking
 from f2depth.data.errors import DataError
 from f2depth.data.prepared import PreparedSet
 from f2depth.epochs import file_digest, write_history
@@ -79,6 +79,7 @@ def main(argv: list[str]) -> None:
     p = P.load(args.params)
     loss = args.loss
     cfg, stage = config_from_params(p, loss)
+    threads.use(P.threads(p), loader_workers=stage.workers)
     P.pretrained_starts(p, ("flow_pretrain.checkpoint",))  # the paper starts from ARFlow's Sintel model
     device = P.device(p)
     ds = PreparedSet(P.get(p, "data.prepared"))

@@ -28,7 +28,7 @@ import numpy as np
 import torch
 
 from f2depth import params as P
-from f2depth import tracking
+from f2depth import threads, tracking
 from f2depth.data.images import read_image
 from f2depth.data.sintel import list_pairs, list_sequences
 from f2depth.epochs import write_history
@@ -104,6 +104,7 @@ def pretrain_on_chairs(model, stage: PretrainStage, seed: int, train_frames: lis
 
 def main(argv: list[str]) -> None:
     p = P.load(argv[1] if len(argv) > 1 else P.DEFAULT_PARAMS)
+    threads.use(P.threads(p))
     cfg, stage = config_from_params(p)
     t0 = time.perf_counter()
     P.pretrained_starts(p, ("flow_pretrain.checkpoint",))  # the paper's start required unless allowed

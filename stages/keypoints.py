@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Literal
 
 from f2depth import params as P
-from f2depth import tracking
+from f2depth import threads, tracking
 from f2depth.io import write_json
 from f2depth.keypoints.extract import SOURCES, extract_keypoints
 from f2depth.keypoints.presets import PRESETS, get_preset
@@ -45,6 +45,7 @@ def config_from_params(p: dict) -> KeypointsParams:
 
 def main(argv: list[str]) -> None:
     p = P.load(argv[1] if len(argv) > 1 else P.DEFAULT_PARAMS)
+    threads.use(P.threads(p))
     cfg = config_from_params(p)
     out_file = Path(P.get(p, "data.keypoints")) / "train.npz"
     source = cfg.source

@@ -15,7 +15,7 @@ import time
 from typing import Any
 
 from f2depth import params as P
-from f2depth import tracking
+from f2depth import threads, tracking
 from f2depth.data.prepared import PreparedSet
 from f2depth.io import write_json
 from f2depth.poses.estimate import PosesConfig, estimate_scenes, tuple_priors
@@ -32,6 +32,7 @@ def config_from_params(p: dict[str, Any]) -> PosesConfig:
 
 def main(argv: list[str]) -> None:
     p = P.load(argv[1] if len(argv) > 1 else P.DEFAULT_PARAMS)
+    threads.use(P.threads(p))
     config = config_from_params(p)
     t0 = time.perf_counter()
     prepared = PreparedSet(P.get(p, "data.prepared"))

@@ -4,7 +4,7 @@ import sys
 from dataclasses import dataclass
 
 from f2depth import params as P
-from f2depth import tracking
+from f2depth import threads, tracking
 from f2depth.data.prepare import PrepareConfig, prepare
 from f2depth.io import write_json
 from f2depth.stage import run_stage
@@ -25,6 +25,7 @@ def config_from_params(p: dict) -> tuple[PrepareConfig, SceneList]:
 
 def main(argv: list[str]) -> None:
     p = P.load(argv[1] if len(argv) > 1 else P.DEFAULT_PARAMS)
+    threads.use(P.threads(p))
     config, scenes = config_from_params(p)
     metrics = prepare(
         nyu_raw=P.get(p, "data.nyu_raw"),

@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Literal
 
 from f2depth import params as P
-from f2depth import tracking
+from f2depth import threads, tracking
 from f2depth.io import write_json, write_text
 from f2depth.stage import run_stage
 from f2depth.synth import OutputPaths, SynthConfig, generate
@@ -27,6 +27,7 @@ def config_from_params(params: dict) -> SynthConfig:
 
 def main(argv: list[str]) -> None:
     params = P.load(argv[1] if len(argv) > 1 else P.DEFAULT_PARAMS)
+    threads.use(P.threads(params))
     data_source = P.value(params, "data_source", Literal["synthetic", "real"])
     cfg = config_from_params(params)
     root = Path(P.value(params, "synth.root", str))

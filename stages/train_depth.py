@@ -23,7 +23,7 @@ import sys
 from pathlib import Path
 
 from f2depth import params as P
-from f2depth import tracking
+from f2depth import threads, tracking
 from f2depth.data.writable import check_output_folder
 from f2depth.epochs import clear_state, write_history
 from f2depth.io import atomic_dir, write_json
@@ -47,6 +47,7 @@ def main(argv: list[str]) -> None:
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     params = P.load(args.params)
     settings = settings_from_params(params, args.variant)
+    threads.use(P.threads(params), loader_workers=settings.workers)
     out_dir = Path(args.models) / f"depth_{args.variant}"
     metrics_file = Path(args.metrics) / f"{args.variant}.json"
     history_file = Path(args.metrics) / args.variant / "history.csv"

@@ -246,7 +246,8 @@ def test_stages_write_their_outputs(prepared, tmp_path, monkeypatch):
     torch.manual_seed(0)
     save_flow_model(tmp_path / "models" / "flow_pretrained.pt", PWCLite())
     params = {
-        "seed": 0, "device": "cpu", "loss_weights": {"flow_smooth": 50}, "allow_random_init": True,
+        "seed": 0, "device": "cpu", "threads": 1, "loss_weights": {"flow_smooth": 50},
+        "allow_random_init": True,
         "flow_pretrain": {"checkpoint": None},
         "data": {"prepared": "data/prepared", "keypoints": "data/keypoints"},
         "flow_finetune": {"losses": ["patch", "full"], "epochs": 1, "batch_size": 6, "lr": 5e-5,
@@ -304,7 +305,7 @@ def test_flow_figure_without_ground_truth_draws_the_predictions(tmp_path, monkey
     torch.manual_seed(0)
     for name in ("pretrained", "patch", "full"):
         save_flow_model(tmp_path / "models" / f"flow_{name}.pt", PWCLite())
-    params = {"seed": 0, "device": "cpu", "data": {"prepared": "data/prepared"},
+    params = {"seed": 0, "device": "cpu", "threads": 1, "data": {"prepared": "data/prepared"},
               "flow_finetune": {"holdout_scenes": 1, "losses": ["patch", "full"],
                                 "pretrained": "models/flow_pretrained.pt", "model": "models/flow_{loss}.pt"},
               "flow_figure": {"pairs": 2, "out": "reports/figures/flow_comparison.png"}}
@@ -324,7 +325,8 @@ def write_stage_params(root: Path, **finetune) -> None:
                "augment": True, "holdout_scenes": 1, "eval_train_pairs": 1, "workers": 0,
                "pretrained": "models/flow_pretrained.pt", "model": "models/flow_{loss}.pt",
                "out_dir": "metrics/flow_finetune", "resume_dir": "tmp/flow_finetune", **finetune}
-    params = {"seed": 0, "device": "cpu", "loss_weights": {"flow_smooth": 50}, "allow_random_init": True,
+    params = {"seed": 0, "device": "cpu", "threads": 1, "loss_weights": {"flow_smooth": 50},
+              "allow_random_init": True,
               "flow_pretrain": {"checkpoint": None},
               "data": {"prepared": "data/prepared", "keypoints": "data/keypoints"}, "flow_finetune": section}
     (root / "params.yaml").write_text(yaml.safe_dump(params))

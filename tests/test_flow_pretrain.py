@@ -172,7 +172,7 @@ def write_stage_inputs(tmp_path: Path, **section) -> Path:
     ``flow_pretrain``); returns the params file."""
     make_set(tmp_path / "data" / "animated")
     params = {
-        "seed": 0, "device": "cpu", "allow_random_init": True,
+        "seed": 0, "device": "cpu", "threads": 1, "allow_random_init": True,
         "data": {"sintel": "data/animated", "prepared": "data/prepared"},
         "flow_pretrain": {"network": "pwclite", "checkpoint": None, "source": "synthetic", "height": 64,
                           "width": 64, "raw_epochs": 1, "census_epochs": 1, "batch_size": 4, "lr": 1e-4,

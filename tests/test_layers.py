@@ -13,6 +13,7 @@ sys.path.insert(0, str(ROOT / "tools"))
 import dvc_deps  # noqa: E402
 
 LAYERS: tuple[tuple[str, ...], ...] = (
+    ("threads",),  # the CPUs a process may use (the process pools of `workers` keep to them)
     # primitives: geometry, cameras, parameters, files, tracking, superpixels
     ("numbers", "io", "params", "precision", "workers", "tracking", "colour", "geometry", "camera",
      "superpixels", "signals"),

@@ -63,6 +63,7 @@ def tree(tmp_path, monkeypatch):
     fakes.write_points_csv(tmp_path / "campus" / "points.csv", rows)
     params = {
         "device": "cpu",
+        "threads": 1,
         "data": {"nyu_labeled": str(mat), "nyu_splits": str(splits), "sevenscenes": str(tmp_path / "7scenes"),
                  "campus": str(tmp_path / "campus")},
         "train_depth": {"seeds": [0, 1]},
@@ -71,7 +72,7 @@ def tree(tmp_path, monkeypatch):
                      "datasets": ["nyu", "sevenscenes", "campus"], "height": None, "width": None,
                      "interpolation": "area", "upsample": "nearest", "decoder_upsample": "bilinear",
                      "batch_size": 2, "max_images": None,
-                     "threads": 1, "timing_height": 64, "timing_width": 64, "timing_repeats": 2,
+                     "timing_height": 64, "timing_width": 64, "timing_repeats": 2,
                      "timing_warmup": 1, "figure_images": 2, "figure_width": 80},
     }  # fmt: skip
     (tmp_path / "params.yaml").write_text(yaml.safe_dump(params))

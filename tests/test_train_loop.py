@@ -139,3 +139,26 @@ def test_fingerprint_covers_settings_and_files(tmp_path):
     assert a != ckpt.fingerprint({"lr": 1e-4}, {"flow": f, "none": None})
     with pytest.raises(FileNotFoundError, match="missing input"):
         ckpt.fingerprint({}, {"x": tmp_path / "nope"})
+
+
+def test_state_every_writes_the_resume_state_after_every_nth_and_the_last_epoch(dataset, tmp_path):
+    torch.set_num_threads(1)
+    cfg = LoopConfig(3, 2, LRSchedule.scaled([1e-4], [1], 3), seed=7, progress=False, state_every=2)
+    state_file = tmp_path / "every.pt"
+    saved = []
+
+    def note_state(row):
+        state, _ = ckpt.load_state(state_file, "run")
+        saved.append(None if state is None else state["epoch"])
+        if row["epoch"] == 1 and len(saved) == 1:
+            raise Killed  # killed after epoch 1: nothing to resume from yet
+
+    with pytest.raises(Killed):
+        fit(new_model(), dataset, None, STEP, cfg, checkpoint=state_file, fingerprint="run",
+            on_epoch=note_state)
+    assert saved == [None] and not state_file.exists()
+    again = fit(new_model(), dataset, None, STEP, cfg, checkpoint=state_file, fingerprint="run",
+                on_epoch=note_state)
+    assert again.resumed_from == 0 and saved == [None, None, 2, 3]
+    with pytest.raises(ValueError, match="state_every"):
+        LoopConfig(3, 2, LRSchedule.scaled([1e-4], [1], 3), state_every=0)

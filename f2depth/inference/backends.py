@@ -133,10 +133,11 @@ class OnnxBackend:
 
 
 def load_backend(model: str | os.PathLike | None = None, onnx: str | os.PathLike | None = None,
-                 device: str = "cpu") -> TorchBackend | OnnxBackend:
-    """Exactly one of ``model`` (a ``f2depth.depth`` checkpoint) or ``onnx`` (an export)."""
+                 device: str = "cpu", threads: int | None = None) -> TorchBackend | OnnxBackend:
+    """Exactly one of ``model`` (a ``f2depth.depth`` checkpoint) or ``onnx`` (an export; ``threads``:
+    onnxruntime's thread count, see :class:`OnnxBackend`)."""
     if (model is None) == (onnx is None):
         raise ValueError("give exactly one of model= (checkpoint) or onnx= (ONNX export)")
     if onnx is not None:
-        return OnnxBackend(onnx, device)
+        return OnnxBackend(onnx, device, threads)
     return TorchBackend.from_checkpoint(model, device)

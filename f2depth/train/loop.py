@@ -2,8 +2,9 @@
 
 ``fit`` trains a DepthModel for ``config.epochs`` epochs on the skeleton of every trainer
 (:mod:`f2depth.epochs`: resume file, history rows, non-finite policy, per-epoch hooks). Epoch 0 is the
-untrained network's validation. After every epoch rank 0 writes the resumable state (model, optimizer,
-grad scaler, RNG); with ``resume`` a matching state continues where it stopped. Because the data order,
+untrained network's validation. After every ``state_every``-th epoch and after the last, rank 0 writes
+the resumable state (model, optimizer, grad scaler, RNG); with ``resume`` a matching state continues where
+it stopped (a run killed between two states redoes the epochs since the last one). Because the data order,
 the augmentation and the fill-up points depend only on (seed, epoch, index), the optimizer state is
 restored exactly and the learning rate is a function of the epoch, a resumed CPU run ends with the same
 weights as an uninterrupted one.
@@ -49,11 +50,12 @@ class LoopConfig:
     sync_bn: bool = True
     progress: bool = True
     val_every: int = 1  # validate after every N-th epoch (and always before training and after the last)
+    state_every: int = 1  # write the resume state after every N-th epoch (and after the last)
 
     def __post_init__(self) -> None:
-        if self.epochs < 1 or self.batch_size < 1 or self.val_every < 1:
-            raise ValueError(f"epochs, batch_size and val_every must be >= 1, got {self.epochs}, "
-                             f"{self.batch_size}, {self.val_every}")
+        if min(self.epochs, self.batch_size, self.val_every, self.state_every) < 1:
+            raise ValueError(f"epochs, batch_size, val_every and state_every must be >= 1, got "
+                             f"{self.epochs}, {self.batch_size}, {self.val_every}, {self.state_every}")
         if self.schedule.epochs != self.epochs:
             raise ValueError(f"the lr schedule covers {self.schedule.epochs} epochs, the run {self.epochs}")
 
@@ -111,7 +113,7 @@ def fit(
     scaler = grad_scaler(ctx.device, step_config.amp)
     parts = {"model": unwrap(ddp), "optimizer": optimizer, "scaler": scaler, "rng": RNGState()}
     loop = EpochLoop("train_depth", config.epochs, parts, checkpoint, fingerprint, main=ctx.is_main,
-                     progress=config.progress)
+                     progress=config.progress, state_every=config.state_every)
     if not loop.restore(resume) and validate is not None and ctx.is_main:
         t0 = time.perf_counter()
         loop.history.append({"epoch": 0, **validate(model), "val_seconds": time.perf_counter() - t0})

@@ -47,7 +47,8 @@ def run_fingerprints(s: TrainSettings) -> dict[int, str]:
     """Seed → what its resumable state must match: the settings that shape training and the contents of
     the input files (the whole prepared set: its images and superpixels too, not only its tables), which
     are read once for all seeds."""
-    ignored = ("seeds", "workers", "resume_dir", "device", "diagnostic_tuples", "val_every")
+    ignored = ("seeds", "workers", "resume_dir", "device", "diagnostic_tuples", "val_every",
+               "state_every")
     settings = {k: v for k, v in s.as_dict().items() if k not in ignored}
     files = {"prepared": s.prepared,  # the folder's contents: images, superpixels, tables, camera
              "keypoints": s.keypoints_file, "flow_model": s.flow_model, "imagenet": s.imagenet_weights,
@@ -155,7 +156,8 @@ def train_variant(
             result = fit(
                 model, dataset, teacher, step_config,
                 LoopConfig(s.epochs, s.batch_size, schedule, seed=seed, workers=s.workers,
-                           sync_bn=s.sync_bn, progress=progress, val_every=s.val_every),
+                           sync_bn=s.sync_bn, progress=progress, val_every=s.val_every,
+                           state_every=s.state_every),
                 ctx=ctx, checkpoint=state_file, resume=resume, fingerprint=run_fps[seed],
                 validate=_measure(validator, truth, ctx.device),
                 on_epoch=lambda row, run=run: run.log_metrics(

@@ -56,6 +56,7 @@ class TrainSettings:
     workers: int = field(metadata={"min": 0})
     val_max_images: int | None = field(metadata={"min": 1})
     val_every: int = field(metadata={"min": 1})
+    state_every: int = field(metadata={"min": 1})
     diagnostic_tuples: int = field(metadata={"min": 0})
     sync_bn: bool
     resume_dir: str
