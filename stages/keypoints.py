@@ -2,8 +2,9 @@
 
 Usage: python stages/keypoints.py [params.yaml]
 
-Selects on the full-resolution crop of each frame's NYU raw file (keypoints.source: full_resolution, as
-P²Net's datasets/nyu_dataset.py; reads data.nyu_raw) or on the prepared image (keypoints.source: prepared).
+Selects on the full-resolution crop of each frame's raw file (keypoints.source: full_resolution, as P²Net's
+datasets/nyu_dataset.py; the raw frames of `train_source`) or on the prepared image (keypoints.source:
+prepared).
 Writes <data.keypoints>/train.npz (docs/formats.md), metrics/keypoints.json and overlay PNGs of a few frames
 into keypoints.overlay_dir. Bad data or parameters end the stage with one line naming the file and the fix.
 """
@@ -15,6 +16,7 @@ from typing import Literal
 
 from f2depth import params as P
 from f2depth import threads, tracking
+from f2depth.data.training_video import training_video
 from f2depth.io import write_json
 from f2depth.keypoints.extract import SOURCES, extract_keypoints
 from f2depth.keypoints.presets import PRESETS, get_preset
@@ -52,7 +54,7 @@ def main(argv: list[str]) -> None:
     metrics = extract_keypoints(
         prepared=P.get(p, "data.prepared"), out_file=out_file, overlay_dir=cfg.overlay_dir, preset=cfg.preset,
         options=cfg.options, workers=cfg.workers, sequence=cfg.sequence, overlays=cfg.overlays, source=source,
-        nyu_raw=P.get(p, "data.nyu_raw") if source == "full_resolution" else None)
+        nyu_raw=training_video(p).root if source == "full_resolution" else None)
     write_json(METRICS, metrics)
     tracking.mirror_stage("keypoints", p, metrics, artifacts=(cfg.overlay_dir,))
     per = metrics["points_per_image"]

@@ -35,6 +35,7 @@ def main(argv: list[str]) -> None:
         note = "data_source is 'real': nothing generated here; see params.yaml data.*\n"
         write_text(root / "README.txt", note)
         write_text(root / "synth_gt" / "README.txt", note)
+        write_text(root / "clips" / "README.txt", note)  # data.video must exist: DVC tracks it
         write_json(METRICS, {"data_source": "real", "generated": False, "frames": 0})
         print("synth: data_source is 'real', nothing generated")
         return

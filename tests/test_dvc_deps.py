@@ -51,13 +51,14 @@ def planted_root(tmp_path: Path, edit) -> Path:
 
 def test_a_missing_and_a_superfluous_dep_are_both_named(tmp_path):
     text = (ROOT / "dvc.yaml").read_text()
-    assert "      - f2depth/superpixels.py\n" in text.split("  keypoints:")[0]  # prepare's
+    assert "      - f2depth/superpixels.py\n" in text.split("  prepare:")[1].split("  keypoints:")[0]
     assert "f2depth/report/published.py" not in text.split("  tables:")[0]
 
-    def plant(t: str) -> str:
-        head, tail = t.split("  keypoints:", 1)
-        head = head.replace("      - f2depth/superpixels.py\n", "      - f2depth/report/published.py\n")
-        return head + "  keypoints:" + tail
+    def plant(t: str) -> str:  # in prepare's entry only
+        head, rest = t.split("  prepare:", 1)
+        stage, tail = rest.split("  keypoints:", 1)
+        stage = stage.replace("      - f2depth/superpixels.py\n", "      - f2depth/report/published.py\n")
+        return head + "  prepare:" + stage + "  keypoints:" + tail
 
     left = dvc_deps.differences(planted_root(tmp_path, plant))
     assert left == ["prepare: missing f2depth/superpixels.py",
@@ -65,9 +66,10 @@ def test_a_missing_and_a_superfluous_dep_are_both_named(tmp_path):
 
 
 def test_a_whole_folder_dep_is_superfluous(tmp_path):
-    def plant(t: str) -> str:
+    def plant(t: str) -> str:  # in prepare's entry
         dep = "      - f2depth/superpixels.py\n"
-        return t.replace(dep, dep + "      - f2depth/eval\n", 1)
+        head, rest = t.split("  prepare:", 1)
+        return head + "  prepare:" + rest.replace(dep, dep + "      - f2depth/eval\n", 1)
 
     assert "prepare: superfluous f2depth/eval" in dvc_deps.differences(planted_root(tmp_path, plant))
 

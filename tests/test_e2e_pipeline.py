@@ -42,6 +42,7 @@ TINY: dict[str, object] = {
     "synth.animated.frames": 3,
     "synth.animated.height": 64,
     "synth.animated.width": 64,
+    "ingest.min_motion": 0.0005,  # the tiny clips' 7 frames move less than the default asks
     "prepare.height": 64,
     "prepare.width": 64,
     "prepare.frame_step": 2,
@@ -137,7 +138,7 @@ def test_dvc_repro_runs_every_stage_then_is_up_to_date(tmp_path):
 
     first = run([str(BIN / "dvc"), "repro"], repo, env, timeout=900)
     stages = yaml.safe_load((repo / "dvc.lock").read_text())["stages"]
-    expected = {"synth", "prepare", "keypoints", "poses", "flow_pretrain", "flow_figure", "tables",
+    expected = {"synth", "ingest", "prepare", "keypoints", "poses", "flow_pretrain", "flow_figure", "tables",
                 *(f"flow_finetune@{loss}" for loss in params["flow_finetune"]["losses"]),
                 *(f"{stage}@{v}" for stage in ("train_depth", "evaluate") for v in params["variants"])}
     assert expected <= set(stages), sorted(expected - set(stages))

@@ -155,7 +155,7 @@ def test_keypoints_killed_with_9_redo_the_same_file(tmp_path):
     import yaml
     from test_keypoints_stage import fake_prepared
 
-    params = {"data": {"prepared": "data/prepared", "keypoints": "data/keypoints"},
+    params = {"threads": 1, "data": {"prepared": "data/prepared", "keypoints": "data/keypoints"},
               "keypoints": {"source": "prepared", "preset": "p2net", "options": {}, "sequence": False,
                             "workers": 1, "overlays": 1, "overlay_dir": "reports/figures/keypoints"}}
     command = [sys.executable, str(ROOT / "stages" / "keypoints.py"), "params.yaml"]

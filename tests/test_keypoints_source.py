@@ -162,6 +162,7 @@ def test_camera_json_without_crop_is_a_data_error(tmp_path):
 
 def _params(tmp_path: Path, raw: Path, prepared: Path, source: str = "full_resolution") -> None:
     params = {
+        "threads": 1, "train_source": "nyu_raw",
         "data": {"prepared": str(prepared), "keypoints": "data/keypoints", "nyu_raw": str(raw)},
         "keypoints": {"source": source, "preset": "p2net", "options": {}, "sequence": False, "workers": 2,
                       "overlays": 2, "overlay_dir": "reports/figures/keypoints"},

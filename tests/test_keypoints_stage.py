@@ -54,6 +54,7 @@ def fake_prepared(root: Path, frames_per_scene: int = 5) -> list[np.ndarray]:
 def test_stage_end_to_end(tmp_path):
     images = fake_prepared(tmp_path / "data" / "prepared")
     params = {
+        "threads": 1,
         "data": {"prepared": "data/prepared", "keypoints": "data/keypoints"},
         "keypoints": {"source": "prepared", "preset": "p2net", "options": {}, "sequence": False, "workers": 2,
                       "overlays": 3, "overlay_dir": "reports/figures/keypoints"},

@@ -361,7 +361,8 @@ def test_stage_with_real_data_generates_nothing(tmp_path, monkeypatch):
     assert json.loads(Path("metrics/synth.json").read_text())["data_source"] == "real"
     assert sorted(os.listdir(tmp_path)) == ["data", "metrics", "params.yaml"]
     written = sorted(str(p.relative_to(tmp_path)) for p in (tmp_path / "data").rglob("*") if p.is_file())
-    assert written == ["data/raw/README.txt", "data/raw/synth_gt/README.txt"]  # placeholders, no data
+    # placeholders, no data
+    assert written == ["data/raw/README.txt", "data/raw/clips/README.txt", "data/raw/synth_gt/README.txt"]
 
 
 def test_regenerating_smaller_removes_the_stale_frames_only(tmp_path):

@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import Any
 
 from f2depth import params as P
+from f2depth.synth.clips import ClipsParams
 
 
 @dataclass(frozen=True)
@@ -37,6 +38,7 @@ class SynthConfig:
     compress_gt: bool = False
     flow_gt: bool = False
     sensor_effects: bool = True
+    clips: ClipsParams = ClipsParams(static_frames=8, fast_share=0.3, fast_step=3, fps=30.0)
 
     @classmethod
     def from_params(cls, synth: dict[str, Any], source: str = "params.yaml") -> SynthConfig:
@@ -50,7 +52,7 @@ class SynthConfig:
                    campus_images=s.campus.images_per_scene, campus_hw=(s.campus.height, s.campus.width),
                    campus_focal=s.campus.focal, animated_sequences=s.animated.sequences,
                    animated_frames=s.animated.frames, animated_hw=(s.animated.height, s.animated.width),
-                   compress_gt=s.compress_gt, flow_gt=s.flow_gt)
+                   compress_gt=s.compress_gt, flow_gt=s.flow_gt, clips=s.clips)
 
 
 def _at_least(low: float) -> Any:
@@ -111,6 +113,7 @@ class SynthParams:
     sevenscenes: SevenScenesParams
     campus: CampusParams
     animated: AnimatedParams
+    clips: ClipsParams
 
 
 @dataclass(frozen=True)
@@ -125,6 +128,7 @@ class OutputPaths:
     campus: Path
     animated: Path
     synth_gt: Path
+    clips: Path  # the NYU-raw scenes as MP4 clips (f2depth.synth.clips)
 
     @classmethod
     def under(cls, root: str | Path) -> OutputPaths:
@@ -132,4 +136,4 @@ class OutputPaths:
         r = Path(root)
         return cls(nyu_raw=r / "nyu_raw", nyu_labeled=r / "nyu_labeled" / "nyu_depth_v2_labeled.mat",
                    nyu_splits=r / "nyu_labeled" / "splits.mat", sevenscenes=r / "7scenes",
-                   campus=r / "campus", animated=r / "animated", synth_gt=r / "synth_gt")
+                   campus=r / "campus", animated=r / "animated", synth_gt=r / "synth_gt", clips=r / "clips")

@@ -15,6 +15,7 @@ from f2depth.io import csv_text, write_json, write_text
 from f2depth.synth import jobs as _jobs
 from f2depth.synth import matfiles, plan
 from f2depth.synth.cleanup import remove_previous
+from f2depth.synth.clips import write_clips
 from f2depth.synth.config import OutputPaths, SynthConfig
 from f2depth.workers import map_jobs
 
@@ -38,9 +39,13 @@ def generate(cfg: SynthConfig, paths: OutputPaths, progress: bool = True) -> dic
 
     for name in plan.standins():  # the files a test set's stand-in has besides its frames
         FINISH[name](cfg, paths, by_ds.get(name, []))
+    clips = write_clips(paths.nyu_raw, sorted({r["room"] for r in by_ds.get("nyu_raw", [])}), paths.clips,
+                        cfg.clips)
     manifest = _manifest(cfg, by_ds)
     write_json(paths.synth_gt / "manifest.json", manifest)
     metrics = _metrics(cfg, by_ds, manifest, time.perf_counter() - t0)
+    metrics["clips"] = {"scenes": len(clips), "frames": sum(c["frames"] for c in clips.values()),
+                        "static_frames": cfg.clips.static_frames}
     metrics["stale_files_removed"] = removed
     return metrics
 
