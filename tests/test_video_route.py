@@ -149,3 +149,19 @@ def test_train_source_points_prepare_keypoints_and_poses_at_the_ingested_frames(
         training_video({**params, "train_source": "youtube"})
     for name in ("prepare", "keypoints", "poses"):
         assert "training_video(p)" in (ROOT / "stages" / f"{name}.py").read_text(), name
+
+
+def test_ingesting_the_same_clips_twice_gives_the_same_bytes(world, tmp_path):
+    """DVC hashes data.ingested: an identical re-run must not re-run prepare and everything after it."""
+    import hashlib
+
+    from f2depth.ingest.run import IngestConfig, ingest
+
+    config = IngestConfig(frame_step=1, rate=None, min_motion=0.003, min_sharpness=0, max_side=640)
+    digests = []
+    for name in ("a", "b"):
+        out = tmp_path / name
+        ingest([world.clips], out, config, camera_file=world.clips / "camera.json", progress=False)
+        digests.append({str(f.relative_to(out)): hashlib.sha256(f.read_bytes()).hexdigest()
+                        for f in sorted(out.rglob("*")) if f.is_file()})
+    assert digests[0] == digests[1] and len(digests[0]) > 6
