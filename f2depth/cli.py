@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import re
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -25,9 +24,9 @@ from f2depth.inference.limits import (
     MIN_SIDE,
     check_export_size,
 )
+from f2depth.params import DEVICES, device_problem
 
 EXIT_INPUT, EXIT_USAGE, EXIT_MISSING, EXIT_INTERRUPTED, EXIT_TERMINATED = 1, 2, 3, 130, 143
-_DEVICE = re.compile(r"auto|cpu|mps|cuda(:\d+)?")
 
 RELATIVE_NOTE = """\
 Depth is RELATIVE: the networks are self-supervised (trained from video without depth), so a prediction
@@ -125,25 +124,10 @@ def _opset(text: str) -> int:
 
 
 def _device(text: str) -> str:
-    """auto | cpu | cuda | cuda:N | mps, checked against what this machine's torch offers."""
-    if not _DEVICE.fullmatch(text):
-        raise argparse.ArgumentTypeError(f"unknown device {text!r}: use auto, cpu, cuda, cuda:N or mps")
-    if text in ("auto", "cpu"):
-        return text
-    import torch
-
-    if text == "mps":
-        if not torch.backends.mps.is_available():
-            raise argparse.ArgumentTypeError("mps (Apple GPU) is not available here; use cpu or auto")
-        return text
-    if not torch.cuda.is_available():
-        raise argparse.ArgumentTypeError(f"{text}: CUDA is not available (torch {torch.__version__} sees no "
-                                         "GPU); use cpu or auto")
-    count = torch.cuda.device_count()
-    index = int(text.partition(":")[2] or 0)
-    if index >= count:
-        raise argparse.ArgumentTypeError(f"{text}: this machine has {count} CUDA device(s), "
-                                         f"cuda:0..cuda:{count - 1}")
+    """One of :data:`f2depth.params.DEVICES` that this machine has (params.yaml's grammar)."""
+    problem = device_problem(text)
+    if problem is not None:
+        raise argparse.ArgumentTypeError(problem)
     return text
 
 
@@ -157,7 +141,7 @@ def _add_network(p: argparse.ArgumentParser, required: bool = True) -> None:
                    help="Monodepth's flip post-processing (predicts image and mirror image, blends; 2× time)")
     p.add_argument("--batch-size", type=_positive_int, default=4, help="frames per network call (default 4)")
     p.add_argument("--device", type=_device, default="auto",
-                   help="auto | cpu | cuda | cuda:N | mps (default auto: cuda when available)")
+                   help=f"{DEVICES} (default auto: cuda when available)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar (default: bar on a terminal)")
 
 

@@ -26,6 +26,14 @@ PROJ_EPS = 1e-7
 _SMALL_ANGLE2 = 1e-6
 
 
+def patch_offsets(spacing: int = 2, dtype: torch.dtype = torch.int64, device=None) -> torch.Tensor:
+    """The 3×3 patch ``{−s, 0, s}²`` of ``spacing`` s as ``(9,2)`` offsets ``(dx, dy)``, x first, row-major
+    (dy outer: index 0 = (−s, −s), 1 = (0, −s), centre 4, 8 = (s, s)), P²Net's order. s = 2 is P²Net's
+    photometric patch and the paper's eq. (1) patch P with N = 2."""
+    r = (-spacing, 0, spacing)
+    return torch.tensor([(dx, dy) for dy in r for dx in r], dtype=dtype, device=device)
+
+
 def pixel_grid(height: int, width: int, dtype: torch.dtype = torch.float32, device=None) -> torch.Tensor:
     """Pixel coordinates ``(1,2,H,W)``, x (column) first, centres at integers."""
     v, u = torch.meshgrid(torch.arange(height, dtype=dtype, device=device),

@@ -86,24 +86,52 @@ def get(params: dict[str, Any], dotted: str, default: Any = ...) -> Any:
     return node
 
 
-def resolve_device(name: str) -> str:
-    """``auto`` → ``cuda`` when available else ``cpu``; anything else is returned as given."""
+#: The one device grammar, of params.yaml's ``device`` and of the CLI's ``--device``.
+DEVICES = "auto, cpu, cuda, cuda:N or mps"
+_DEVICE = re.compile(r"auto|cpu|mps|cuda(:\d+)?")
+
+
+def device_problem(name: str) -> str | None:
+    """Why ``name`` is no device of this machine (one line, ending in the fix), or None when it is one:
+    the grammar :data:`DEVICES`, then what this machine's torch offers (CUDA and its device count, mps)."""
+    if not _DEVICE.fullmatch(name):
+        return f"unknown device {name!r}: use {DEVICES}"
+    if name in ("auto", "cpu"):
+        return None
     import torch
 
+    if name == "mps":
+        available = torch.backends.mps.is_available()
+        return None if available else "mps (Apple GPU) is not available here; use cpu or auto"
+    if not torch.cuda.is_available():
+        return f"{name}: CUDA is not available (torch {torch.__version__} sees no GPU); use cpu or auto"
+    count = torch.cuda.device_count()
+    index = int(name.partition(":")[2] or 0)
+    if index >= count:
+        return f"{name}: this machine has {count} CUDA device(s), cuda:0..cuda:{count - 1}"
+    return None
+
+
+def resolve_device(name: str) -> str:
+    """``auto`` → ``cuda`` when available else ``cpu``; any other device of the grammar is returned as given
+    when this machine has it, else :class:`ParamsError` with :func:`device_problem`'s line."""
+    problem = device_problem(name)
+    if problem is not None:
+        raise ParamsError(problem)
     if name == "auto":
+        import torch
+
         return "cuda" if torch.cuda.is_available() else "cpu"
-    if name.startswith("cuda") and not torch.cuda.is_available():
-        raise ParamsError(f"device '{name}' requested but CUDA is not available; set device: cpu or auto")
     return name
 
 
 # ---- the one loader: a params section → a frozen dataclass -------------------------------------------
 
 class Device(str):
-    """Annotation of a device key: ``cpu``, ``cuda``, ``cuda:N`` or ``auto`` (checked by the loader)."""
+    """Annotation of a device key: one of :data:`DEVICES` (the grammar checked by the loader; whether the
+    machine has it, by :func:`resolve_device`)."""
 
 
-_DEVICE = re.compile(r"cpu|auto|cuda(:\d+)?")
 #: Range rules a dataclass field may declare in its metadata, e.g. ``field(metadata={"min": 1})``.
 RULES = {"min": (operator.ge, "a value >= {}"), "max": (operator.le, "a value <= {}"),
          "gt": (operator.gt, "a value > {}"), "multiple_of": (lambda v, m: v % m == 0, "a multiple of {}")}
@@ -259,7 +287,7 @@ def _coerce(path: str, key: str, raw: Any, kind: Any) -> Any:
         return float(raw)
     if kind is Device:
         if not isinstance(raw, str) or not _DEVICE.fullmatch(raw):
-            raise bad("cpu, cuda, cuda:N or auto")
+            raise bad(DEVICES)
         return str(raw)
     if kind is str:
         if not isinstance(raw, str):

@@ -18,10 +18,9 @@ from f2depth.flow.patch_loss import (
     census_at,
     finetune_loss,
     pad_keypoints,
-    patch_offsets,
-    patch_pixels,
+    patch_indices,
 )
-from f2depth.geometry import warp
+from f2depth.geometry import patch_offsets, warp
 
 H, W = 40, 56
 
@@ -79,19 +78,19 @@ def test_n2_pattern_is_the_papers():
     assert {tuple(o) for o in off.tolist()} == {(i, j) for i in (-2, 0, 2) for j in (-2, 0, 2)}
     assert off.shape == (9, 2) and off[4].tolist() == [0, 0]
     kp, mask = pad_keypoints([torch.tensor([[20, 15]])])
-    idx, valid = patch_pixels(kp, mask, H, W, spacing=2)
+    idx, valid = patch_indices(kp, mask, H, W, spacing=2)
     got = {(int(i) % W, int(i) // W) for i in idx[0][valid[0]]}
     assert got == {(20 + i, 15 + j) for i in (-2, 0, 2) for j in (-2, 0, 2)}
-    idx, valid = patch_pixels(kp, mask, H, W, spacing=3)
+    idx, valid = patch_indices(kp, mask, H, W, spacing=3)
     assert {(int(i) % W, int(i) // W) for i in idx[0][valid[0]]} == {(20 + i, 15 + j) for i in (-3, 0, 3)
                                                                      for j in (-3, 0, 3)}
 
 
-def test_patch_pixels_union_inside_image_and_mask():
+def test_patch_indices_union_inside_image_and_mask():
     kp, mask = pad_keypoints([torch.tensor([[10, 10], [10, 10], [12, 10], [0, 0], [W - 1, H - 1]]),
                               torch.zeros(0, 2, dtype=torch.int64)])
     assert kp.shape == (2, 5, 2) and mask.sum(1).tolist() == [5, 0]
-    idx, valid = patch_pixels(kp, mask, H, W, spacing=2)
+    idx, valid = patch_indices(kp, mask, H, W, spacing=2)
     pix = {(int(i) % W, int(i) // W) for i in idx[0][valid[0]]}
     expect = {(x + i, y + j) for x, y in ((10, 10), (12, 10)) for i in (-2, 0, 2) for j in (-2, 0, 2)}
     expect |= {(2, 2), (W - 3, H - 3)}  # the corner keypoints keep only their patch pixels off the border
@@ -134,7 +133,7 @@ def test_true_flow_beats_perturbed(way):
     assert st_true["noc_fraction"] > 0.9  # only pixels whose flow leaves the image fail the check
 
 
-def test_gradient_only_at_patch_pixels():
+def test_gradient_only_at_patch_indices():
     img1, img2 = texture(4, 2), texture(5, 2)
     flow = (smooth_flow(2) + 0.3 * torch.randn(2, 2, H, W, generator=torch.Generator().manual_seed(1)))
     flow.requires_grad_(True)
@@ -143,7 +142,7 @@ def test_gradient_only_at_patch_pixels():
     loss.backward()
     touched = flow.grad.abs().sum(1) > 0                                    # (B,H,W)
     in_patch = torch.zeros(2, H * W, dtype=torch.bool)
-    idx, valid = patch_pixels(kp, mask, H, W)
+    idx, valid = patch_indices(kp, mask, H, W)
     in_patch.scatter_(1, idx, valid)
     in_patch = in_patch.view(2, H, W)
     noc, _ = non_occluded_by_consistency(flow.detach(), -flow.detach())
@@ -250,11 +249,11 @@ def test_one_scale_forward_reproduces_the_previous_value():
         assert float(five) == float(loss)
 
 
-def test_patch_pixels_map_to_coarser_levels():
+def test_patch_indices_map_to_coarser_levels():
     kp, mask = pad_keypoints([torch.tensor([[21, 15]])])
 
     def level(i):
-        idx, valid = patch_pixels(kp, mask, H, W, 2, level_hw=(H >> i, W >> i))
+        idx, valid = patch_indices(kp, mask, H, W, 2, level_hw=(H >> i, W >> i))
         return {(int(p) % (W >> i), int(p) // (W >> i)) for p in idx[0][valid[0]]}, int(valid.sum())
 
     assert level(0)[0] == {(21 + i, 15 + j) for i in (-2, 0, 2) for j in (-2, 0, 2)}
@@ -266,7 +265,7 @@ def test_patch_pixels_map_to_coarser_levels():
     assert level(3) == ({(2, 1), (2, 2)}, 2)
     # a patch pixel outside the input is dropped before mapping; the level's border afterwards
     edge, emask = pad_keypoints([torch.tensor([[1, 20]])])
-    idx, valid = patch_pixels(edge, emask, H, W, 2, level_hw=(H >> 1, W >> 1))
+    idx, valid = patch_indices(edge, emask, H, W, 2, level_hw=(H >> 1, W >> 1))
     assert {(int(p) % (W >> 1), int(p) // (W >> 1)) for p in idx[0][valid[0]]} == {(1, 9), (1, 10), (1, 11)}
 
 
@@ -352,7 +351,7 @@ def test_backward_term_uses_the_source_keypoints_at_every_level():
     for flows, (k, m) in ((fw, (kp1, m1)), (bw, (kp2, m2))):
         for i, f in enumerate(flows):
             h, w = f.shape[-2:]
-            idx, valid = patch_pixels(k, m, H, W, 2, level_hw=(h, w))
+            idx, valid = patch_indices(k, m, H, W, 2, level_hw=(h, w))
             region = torch.zeros(h * w, dtype=torch.bool)
             region[idx[0][valid[0]]] = True
             touched = f.grad[0].abs().sum(0).reshape(-1) > 0

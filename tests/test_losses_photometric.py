@@ -7,11 +7,11 @@ from depth_scenes import plane_scene
 
 from f2depth import geometry as G
 from f2depth.losses.photometric import (
-    PATCH_OFFSETS,
+    PATCH_SPACING,
     centre_depth,
     patch_photometric_errors,
     patch_photometric_loss,
-    patch_pixels,
+    patch_samples,
     project_patches,
 )
 
@@ -24,9 +24,10 @@ def _points(n: int, h: int, w: int, seed: int = 0, margin: int = 3) -> torch.Ten
 
 
 def test_pattern_is_p2net_order():
-    assert PATCH_OFFSETS[0] == (-2, -2) and PATCH_OFFSETS[1] == (0, -2) and PATCH_OFFSETS[4] == (0, 0)
-    assert PATCH_OFFSETS[8] == (2, 2) and len(set(PATCH_OFFSETS)) == 9
-    pix = patch_pixels(torch.tensor([[[5.2, 7.0]]]))
+    offsets = [tuple(o) for o in G.patch_offsets(PATCH_SPACING).tolist()]
+    assert offsets[0] == (-2, -2) and offsets[1] == (0, -2) and offsets[4] == (0, 0)
+    assert offsets[8] == (2, 2) and len(set(offsets)) == 9
+    pix = patch_samples(torch.tensor([[[5.2, 7.0]]]))
     assert pix.shape == (1, 1, 9, 2)
     assert torch.equal(pix[0, 0, 0], torch.tensor([3.0, 5.0])) and torch.equal(
         pix[0, 0, 5], torch.tensor([7.0, 7.0])
@@ -42,7 +43,7 @@ def test_centre_depth_gathers_integer_pixel():
 def test_patches_share_centre_depth_and_follow_rigid_flow_at_centre():
     s = plane_scene().torch()
     pts = _points(20, 64, 96)
-    pix_t = patch_pixels(pts)
+    pix_t = patch_samples(pts)
     d_c = centre_depth(s["depth_t"], pts)
     pix_s = project_patches(d_c, pix_t, s["K"], s["T"])
     # The centre sample lands where the dense rigid flow sends it.

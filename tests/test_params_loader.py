@@ -145,7 +145,7 @@ def test_value_and_device():
     for bad in ("foo", "cuda:x", "gpu"):
         with pytest.raises(P.ParamsError) as info:
             P.device({**good(), "device": bad})
-        assert str(info.value) == f"p.yaml: device is '{bad}'; set it to cpu, cuda, cuda:N or auto"
+        assert str(info.value) == f"p.yaml: device is '{bad}'; set it to auto, cpu, cuda, cuda:N or mps"
 
 
 def load_stage(name: str):
@@ -200,7 +200,7 @@ def test_every_migrated_stage_builds_its_config_from_params_and_each_profile(tmp
     ("flow_pretrain", "flow_pretrain.source", "kitti", "flow_pretrain.source is 'kitti'; set it to one of"),
     ("keypoints", "keypoints.options", {"densty": 3}, "keypoints: unknown selector option(s) ['densty']"),
     ("evaluate", "evaluate.timing_repeats", 0, "evaluate.timing_repeats is 0; set it to a value >= 1"),
-    ("flow_figure", "device", "foo", "device is 'foo'; set it to cpu, cuda, cuda:N or auto"),
+    ("flow_figure", "device", "foo", "device is 'foo'; set it to auto, cpu, cuda, cuda:N or mps"),
     ("synth", "synth.compress_gt", "false", "synth.compress_gt is 'false'; set it to true or false"),
     ("synth", "synth.sevenscenes.scenes", 8, "synth.sevenscenes.scenes is 8; set it to a value <= 7"),
     ("synth", "synth.nyu_labeled.test_fraction", 1.0, "synth.nyu_labeled.test_fraction must be < 1"),
@@ -242,7 +242,7 @@ def test_a_stage_given_a_bad_value_prints_one_line_and_touches_nothing(tmp_path)
     ("train_depth.init_dpeth", 2.0, "params.yaml: train_depth: unknown keys ['init_dpeth']; "
                                     "train_depth.init_dpeth: did you mean init_depth?"),
     ("train_depth.seeds", [0, 0], "params.yaml: train_depth.seeds must be a non-empty list of distinct"),
-    ("device", "foo", "params.yaml: device is 'foo'; set it to cpu, cuda, cuda:N or auto"),
+    ("device", "foo", "params.yaml: device is 'foo'; set it to auto, cpu, cuda, cuda:N or mps"),
 ])  # fmt: skip
 def test_train_depth_settings_reject_bad_values(dotted, bad, expected):
     """The failures of params.yaml without a schema: a bare ValueError for a loss weight "abc", a weight of -1
@@ -276,3 +276,30 @@ def test_a_file_that_is_not_yaml_is_one_line_with_its_line(tmp_path):
     path.write_text("seed: 0\ntrain_depth:\n  epochs: [1, 2\n  lr: 3\n")
     with pytest.raises(P.ParamsError, match=rf"^{path}: line \d+ is not valid YAML \(.+\); fix the file$"):
         P.load(path)
+
+
+def test_params_and_the_cli_share_one_device_grammar():
+    import argparse
+
+    import torch
+
+    from f2depth.cli import _device
+
+    missing = f"cuda:{torch.cuda.device_count()}"  # never on this machine: no CUDA, or one index too far
+    for name in ("auto", "cpu", "mps", "cuda", missing, "gpu", "cuda:x"):
+        problem = P.device_problem(name)
+        try:
+            cli_problem = None if _device(name) == name else "changed"
+        except argparse.ArgumentTypeError as exc:
+            cli_problem = str(exc)
+        assert cli_problem == problem, name
+        if problem is None:
+            assert P.device({**good(), "device": name}) in ("cpu", "cuda", name)
+        else:
+            with pytest.raises(P.ParamsError) as info:
+                P.device({**good(), "device": name})
+            assert str(info.value).startswith("p.yaml: ") and ("device is" in str(info.value)
+                                                               or str(info.value).endswith(problem))
+    assert P.device_problem("gpu") == "unknown device 'gpu': use auto, cpu, cuda, cuda:N or mps"
+    assert P.device_problem(missing) is not None and missing in P.device_problem(missing)
+    assert P.device_problem("cpu") is None

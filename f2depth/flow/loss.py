@@ -17,6 +17,7 @@ numerator is exactly 0 in that case, so the photometric term becomes 0 and the l
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import Protocol
 
 import torch
 import torch.nn.functional as F
@@ -145,9 +146,20 @@ def non_occluded_by_consistency(flow_fw: torch.Tensor, flow_bw: torch.Tensor, sc
     return visible(flow_fw, flow_bw), visible(flow_bw, flow_fw)
 
 
-def non_occluded_masks(flow_fw: torch.Tensor, flow_bw: torch.Tensor, cfg: FlowLossConfig
+class OcclusionSettings(Protocol):
+    """What decides occlusion, shared by ARFlow's loss (:class:`FlowLossConfig`) and the patch loss
+    (:class:`f2depth.flow.patch_loss.FinetuneLossConfig`)."""
+
+    occ_from_back: bool       # True: the range map (UnOS); False: the forward–backward check
+    range_threshold: float
+    fb_scale: float
+    fb_bias: float
+
+
+def non_occluded_masks(flow_fw: torch.Tensor, flow_bw: torch.Tensor, cfg: OcclusionSettings
                        ) -> tuple[torch.Tensor, torch.Tensor]:
-    """The loss's non-occluded masks of frames 1 and 2 ``(B,1,H,W)`` for the finest flows, per ``cfg``."""
+    """The non-occluded masks of frames 1 and 2 ``(B,1,H,W)`` for the finest flows ``(B,2,H,W)`` pixels, x
+    first, per ``cfg`` — the one occlusion decision of both flow losses."""
     if cfg.occ_from_back:
         return non_occluded_by_range(flow_fw, flow_bw, cfg.range_threshold)
     return non_occluded_by_consistency(flow_fw, flow_bw, cfg.fb_scale, cfg.fb_bias)

@@ -63,7 +63,8 @@ import torch
 import torch.nn.functional as F
 
 from f2depth.flow.census import grey255
-from f2depth.flow.loss import non_occluded_by_consistency, non_occluded_by_range, smoothness
+from f2depth.flow.loss import non_occluded_masks, smoothness
+from f2depth.geometry import patch_offsets
 
 OCCLUSION_CHECKS = ("forward_backward", "range_map")
 CENSUS_BORDER = 1
@@ -84,6 +85,12 @@ class FinetuneLossConfig:
     fb_bias: float = 0.5
     range_threshold: float = 0.2      # range map: occluded where the splatted count is below this
 
+    @property
+    def occ_from_back(self) -> bool:
+        """The range map rather than the forward–backward check
+        (:func:`f2depth.flow.loss.non_occluded_masks`)."""
+        return self.occlusion == "range_map"
+
     def __post_init__(self) -> None:
         if self.occlusion not in OCCLUSION_CHECKS:
             raise ValueError(f"FinetuneLossConfig.occlusion must be one of {OCCLUSION_CHECKS}, "
@@ -93,12 +100,6 @@ class FinetuneLossConfig:
         if not self.w_scales or any(w < 0 for w in self.w_scales) or not any(w > 0 for w in self.w_scales):
             raise ValueError(f"FinetuneLossConfig.w_scales must be non-negative with one positive weight, "
                              f"got {self.w_scales}")
-
-
-def patch_offsets(spacing: int = 2) -> torch.Tensor:
-    """``(9, 2)`` int64 offsets ``(dx, dy)`` of ``{−N, 0, N}²``, row-major (dy outer), centre at index 4."""
-    r = (-spacing, 0, spacing)
-    return torch.tensor([(dx, dy) for dy in r for dx in r], dtype=torch.int64)
 
 
 def pad_keypoints(points: Sequence[torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
@@ -115,9 +116,9 @@ def pad_keypoints(points: Sequence[torch.Tensor]) -> tuple[torch.Tensor, torch.T
     return kp, mask
 
 
-def patch_pixels(keypoints: torch.Tensor, mask: torch.Tensor, height: int, width: int, spacing: int = 2,
-                 border: int = CENSUS_BORDER, level_hw: tuple[int, int] | None = None
-                 ) -> tuple[torch.Tensor, torch.Tensor]:
+def patch_indices(keypoints: torch.Tensor, mask: torch.Tensor, height: int, width: int, spacing: int = 2,
+                  border: int = CENSUS_BORDER, level_hw: tuple[int, int] | None = None
+                  ) -> tuple[torch.Tensor, torch.Tensor]:
     """The patch pixel set of every image, as flat indices of the level grid.
 
     ``keypoints (B,K,2)`` integer pixels of the ``height × width`` input image, x first, ``mask (B,K)``
@@ -130,7 +131,7 @@ def patch_pixels(keypoints: torch.Tensor, mask: torch.Tensor, height: int, width
     """
     h, w = level_hw if level_hw is not None else (height, width)
     b = keypoints.shape[0]
-    off = patch_offsets(spacing).to(keypoints.device)
+    off = patch_offsets(spacing, device=keypoints.device)
     pix = keypoints[:, :, None, :].to(torch.int64) + off                      # (B,K,9,2)
     x, y = pix[..., 0], pix[..., 1]
     inside = mask[:, :, None] & (x >= 0) & (x <= width - 1) & (y >= 0) & (y <= height - 1)
@@ -162,7 +163,7 @@ def census_at(img1: torch.Tensor, img2: torch.Tensor, flow: torch.Tensor, idx: t
     """
     b, _, h, w = img1.shape
     m = idx.shape[1]
-    off = patch_offsets(1).to(idx.device)                                       # (9,2) dx, dy
+    off = patch_offsets(1, device=idx.device)                                  # (9,2) dx, dy
     nb = (idx[:, :, None] + off[:, 1] * w + off[:, 0]).clamp(0, h * w - 1)     # (B,M,9)
     g1 = grey255(img1).reshape(b, h * w)
     win1 = g1.gather(1, nb.reshape(b, -1)).reshape(b, m, 9)
@@ -191,7 +192,7 @@ def _patch_term(img_a: torch.Tensor, img_b: torch.Tensor, flow: torch.Tensor, no
     """One level and direction: frame a's patches, flow a → b, non-occluded mask ``noc (B,1,h,w)`` of a."""
     b = flow.shape[0]
     h, w = flow.shape[-2:]
-    idx, valid = patch_pixels(keypoints, mask, *input_hw, spacing, level_hw=(h, w))
+    idx, valid = patch_indices(keypoints, mask, *input_hw, spacing, level_hw=(h, w))
     weight = (valid & (noc.reshape(b, h * w).gather(1, idx) > 0)).to(img_a.dtype)
     dist = census_at(img_a, img_b, flow, idx)
     used = weight.sum()
@@ -234,11 +235,7 @@ def finetune_loss(flows_fw: torch.Tensor | Sequence[torch.Tensor],
                              "keypoints (B,2,K,2) and keypoint_mask (B,2,K)")
         keypoints, keypoint_mask = keypoints[:, None], keypoint_mask[:, None]
     b, _, h, w = img1.shape
-    f12, f21 = fw[0].detach(), bw[0].detach()
-    if cfg.occlusion == "range_map":
-        noc1, noc2 = non_occluded_by_range(f12, f21, cfg.range_threshold)
-    else:
-        noc1, noc2 = non_occluded_by_consistency(f12, f21, cfg.fb_scale, cfg.fb_bias)
+    noc1, noc2 = non_occluded_masks(fw[0].detach(), bw[0].detach(), cfg)
     photometric = img1.new_zeros(())
     finest: _Term | None = None
     for i, weight in enumerate(cfg.w_scales[:len(fw)]):

@@ -13,17 +13,12 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
-from f2depth.geometry import PROJ_EPS
+from f2depth.geometry import PROJ_EPS, patch_offsets
 from f2depth.losses.ssim import ssim_samples
 
-#: Patch offsets (dx, dy), row-major over dy, P²Net's order.
-PATCH_OFFSETS = tuple((dx, dy) for dy in (-2, 0, 2) for dx in (-2, 0, 2))
+#: P²Net's patch: the 9 samples at offsets {−2, 0, 2}² (:func:`f2depth.geometry.patch_offsets`).
+PATCH_SPACING = 2
 SSIM_WEIGHT = 0.85
-
-
-def patch_offsets(dtype: torch.dtype = torch.float32, device=None) -> torch.Tensor:
-    """The 9 offsets as a (9,2) tensor, x first."""
-    return torch.tensor(PATCH_OFFSETS, dtype=dtype, device=device)
 
 
 def sample_points(img: torch.Tensor, pix: torch.Tensor) -> torch.Tensor:
@@ -48,10 +43,11 @@ def centre_depth(depth: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
     return torch.gather(depth.reshape(b, h * w), 1, y * w + x)
 
 
-def patch_pixels(points: torch.Tensor) -> torch.Tensor:
-    """Integer centres plus the 9 offsets: points (B,N,2) → (B,N,9,2) pixels, x first."""
+def patch_samples(points: torch.Tensor) -> torch.Tensor:
+    """The positions of P²Net's patch samples: integer centres plus the 9 offsets, points (B,N,2) → (B,N,9,2)
+    pixels, x first."""
     centres = torch.round(points.detach())
-    return centres.unsqueeze(2) + patch_offsets(points.dtype, points.device)
+    return centres.unsqueeze(2) + patch_offsets(PATCH_SPACING, points.dtype, points.device)
 
 
 def project_patches(
@@ -94,7 +90,7 @@ def patch_photometric_errors(
     """
     if len(sources) != len(src_T_tgt) or not sources:
         raise ValueError(f"need one src_T_tgt per source, got {len(sources)} sources, {len(src_T_tgt)} poses")
-    pix_t = patch_pixels(points.to(depth.dtype))
+    pix_t = patch_samples(points.to(depth.dtype))
     target_patch = sample_points(target, pix_t)
     depth_c = centre_depth(depth, points)
     errors = []
