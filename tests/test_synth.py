@@ -141,6 +141,31 @@ def test_gt_flow_warps_the_next_frame_onto_the_frame():
     assert err < 0.25 * np.abs(still - a)[ok].mean()
 
 
+def test_the_ground_truth_shares_the_training_geometrys_pose_convention():
+    """One pose convention: the synth's exact numpy ground truth (relative pose, rigid flow, target depth)
+    equals f2depth.geometry's, which training uses, up to geometry's PROJ_EPS in the projection."""
+    import torch
+
+    from f2depth import geometry as G
+
+    rng = np.random.default_rng(5)
+    depth = (0.5 + 6 * rng.random((48, 64))).astype(np.float32)
+    K = np.array([[52.0, 0, 31.5], [0, 53.0, 24.0], [0, 0, 1]])
+    world_T = [G.pose_from_params(torch.tensor(rng.normal(size=(1, 3)) * 0.05),
+                                  torch.tensor(rng.normal(size=(1, 3)) * 0.1))[0].numpy() for _ in range(2)]
+    tgt_T_src = relative_pose(world_T[0], world_T[1])
+    ours = G.relative_pose(torch.tensor(world_T[0]), torch.tensor(world_T[1])).numpy()
+    np.testing.assert_allclose(tgt_T_src, ours, atol=1e-14)
+    flow, z_tgt = rigid_flow(depth, K, tgt_T_src)
+    depth_t = torch.from_numpy(depth.astype(np.float64))[None, None]
+    K_t, T_t = torch.tensor(K)[None], torch.tensor(tgt_T_src)[None]
+    train_flow = G.rigid_flow(depth_t, K_t, T_t)
+    _, train_z = G.project(G.backproject(depth_t, torch.linalg.inv(K_t)), K_t, T_t)
+    assert np.abs(flow).max() > 1.0  # a real motion, not the identity
+    np.testing.assert_allclose(flow, train_flow[0].permute(1, 2, 0).numpy(), atol=1e-4)  # PROJ_EPS / z
+    np.testing.assert_allclose(z_tgt, train_z[0, 0].numpy(), rtol=1e-6)
+
+
 def test_stored_flow_is_the_projection_of_depth_with_the_relative_pose(tiny):
     scene = next((tiny.synth_gt / "nyu_raw").iterdir())
     files = sorted(scene.glob("*.npz"), key=lambda p: float(p.stem.split("-")[1]))

@@ -2,7 +2,11 @@
 Kinect-like holes for the NYU ``rawDepths``.
 
 Pixel (u, v) = (column, row), centres at integers; depth is z-depth in metres; ``tgt_T_src`` maps points
-of the source camera frame into the target camera frame.
+of the source camera frame into the target camera frame — the pose convention of :mod:`f2depth.geometry`
+(its ``relative_pose`` and ``rigid_flow`` give the same matrices and flows, a test holds them together).
+The ground truth keeps its own float64 numpy projection on purpose: it divides by the exact z, where the
+training projection adds Monodepth2's ``PROJ_EPS`` to z (up to 7e-5 px off at NYU's size), and it runs in
+the synth's numpy worker processes without torch tensors.
 """
 
 from __future__ import annotations
