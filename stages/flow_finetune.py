@@ -28,13 +28,12 @@ from f2depth.data.errors import DataError
 from f2depth.data.prepared import PreparedSet
 from f2depth.epochs import file_digest, write_history
 from f2depth.flow.checkpoint import load_flow_model, save_flow_model
+from f2depth.flow.evaluation import evaluate_gt_pairs
 from f2depth.flow.finetune import (
     HISTORY_COLUMNS,
     LOSSES,
     FinetuneConfig,
-    evaluate_epe,
     finetune,
-    zero_flow_epe,
 )
 from f2depth.flow.finetune_data import FlowPairs, gt_pairs, split_pairs
 from f2depth.io import write_json
@@ -67,8 +66,10 @@ EPE_KEYS = ("epe_all", "epe_noc", "epe_low_texture", "epe_occ", "magnitude_ratio
             "swap_consistency", "pairs")
 
 
-def _epe(d: dict) -> dict:
-    return {k: d.get(k) for k in EPE_KEYS}
+def _epe(scores: dict, which: str = "model") -> dict:
+    """One row of :func:`evaluate_gt_pairs`' ``scores`` (``model`` or ``zero_flow``) with its pair count."""
+    row = {"pairs": scores["pairs"], **scores[which]}
+    return {k: row.get(k) for k in EPE_KEYS}
 
 
 def main(argv: list[str]) -> None:
@@ -105,8 +106,9 @@ def main(argv: list[str]) -> None:
                             f"{len(cfg.w_scales)} levels but the network of {pretrained} outputs {levels}; "
                             f"give at most {levels} weights, finest first")
     test = list(gt_pairs(ds, split.test))
-    before = {"test": _epe(evaluate_epe(model, test, device)),
-              "train": _epe(evaluate_epe(model, gt_pairs(ds, split.train, train_limit), device))}
+    before_test = evaluate_gt_pairs(model, test, device)
+    before = {"test": _epe(before_test),
+              "train": _epe(evaluate_gt_pairs(model, gt_pairs(ds, split.train, train_limit), device))}
     fingerprint = {"pretrained_sha256": file_digest(pretrained), "prepared_sha256": file_digest(ds.root),
                    "keypoints_sha256": file_digest(kp_path) if keypoints is not None else None}
     with tracking.stage_run("flow_finetune", p, variant=loss) as run:
@@ -122,13 +124,13 @@ def main(argv: list[str]) -> None:
                                 "train_scenes": split.train_scenes, "test_scenes": split.test_scenes},
                         params={**P.get(p, "flow_finetune"), "flow_smooth": cfg.smooth_weight,
                                 "seed": cfg.seed})
-        after = {"test": _epe(evaluate_epe(model, test, device)),
-                 "train": _epe(evaluate_epe(model, gt_pairs(ds, split.train, train_limit), device))}
+        after = {"test": _epe(evaluate_gt_pairs(model, test, device)),
+                 "train": _epe(evaluate_gt_pairs(model, gt_pairs(ds, split.train, train_limit), device))}
         metrics = {"loss": loss, "loss_settings": cfg.loss_settings(), "ground_truth": bool(test),
                    "test_scenes": split.test_scenes, "test_on_train": split.test_on_train,
                    "train_pairs": len(split.train), "test_pairs": len(split.test), "pretrained": before,
                    "finetuned": after,
-                   "zero_flow": {"test": _epe(zero_flow_epe(test))}, "epochs": cfg.epochs,
+                   "zero_flow": {"test": _epe(before_test, "zero_flow")}, "epochs": cfg.epochs,
                    "epochs_run": info["epochs_run"], "resumed_from": info["resumed_from"],
                    "seconds": round(time.perf_counter() - t0, 1)}
         write_json(metrics_json, metrics)

@@ -22,9 +22,9 @@ from f2depth.camera import crop_resize_intrinsics
 from f2depth.data.prepared import PreparedSet
 from f2depth.flow.augment import augment_batch
 from f2depth.flow.checkpoint import load_flow_model, save_flow_model
+from f2depth.flow.evaluation import evaluate_gt_pairs
 from f2depth.flow.finetune import (
     FinetuneConfig,
-    evaluate_epe,
     finetune,
     make_optimizer,
     prepare_batch,
@@ -230,7 +230,7 @@ def test_resume_after_interruption_gives_the_same_weights(prepared, tmp_path):
         other = finetune(fresh(), data, FinetuneConfig(epochs=1, batch_size=2, occlusion="forward_backward"),
                          (), tmp_path / "b.pt", {"x": 2}, progress=False)
     assert other["resumed_from"] == 0 and other["history"][0]["photometric"] == 0
-    assert evaluate_epe(resumed, test)["pairs"] == 1
+    assert evaluate_gt_pairs(resumed, test)["pairs"] == 1
 
 
 def _load_stage(name: str):
@@ -345,7 +345,7 @@ def test_w_scales_beyond_the_networks_levels_are_refused_before_evaluation(prepa
     def must_not_run(*args, **kwargs):
         raise AssertionError("evaluated before w_scales was checked")
 
-    monkeypatch.setattr(stage, "evaluate_epe", must_not_run)
+    monkeypatch.setattr(stage, "evaluate_gt_pairs", must_not_run)
     with pytest.raises(ParamsError, match=r"params\.yaml: flow_finetune\.w_scales \[1\.0, 1\.0, 1\.0, 1\.0, "
                                           r"0\.0, 1\.0\] "
                                           r"weighs 6 levels but the network of models/flow_pretrained\.pt "

@@ -32,10 +32,18 @@ Flow pictures use :func:`f2depth.colour.flow_to_color` (the Middlebury colour co
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterable
+from typing import TYPE_CHECKING
+
 import torch
 import torch.nn.functional as F
 
 from f2depth.colour import GREY_MATLAB, grey
+from f2depth.geometry import resize_flow
+
+if TYPE_CHECKING:
+    from f2depth.flow.finetune_data import GTPair
+    from f2depth.flow.network import FlowNetwork
 
 LOW_TEXTURE_THRESHOLD = 0.01
 LOW_TEXTURE_WINDOW = 7
@@ -146,3 +154,46 @@ def epe_stats(flow: torch.Tensor, gt: torch.Tensor, occluded: torch.Tensor | Non
     acc = EPEAccumulator()
     acc.add(flow, gt, occluded, low_texture, valid)
     return acc.result()
+
+
+def network_flow(model: FlowNetwork, a: torch.Tensor, b: torch.Tensor, hw: tuple[int, int], device: str
+                 ) -> torch.Tensor:
+    """Network input frames ``(1,3,h,w)`` in [0,1] → forward flow ``(1,2,H,W)`` pixels, x first, resized to
+    ``hw`` = (H, W) with its components rescaled (ARFlow's protocol), on the CPU."""
+    return resize_flow(model(a.to(device), b.to(device), with_backward=False)[0][0], hw).cpu()
+
+
+@torch.no_grad()
+def score_pair(model: FlowNetwork, acc: EPEAccumulator, zero: EPEAccumulator, a: torch.Tensor,
+               b: torch.Tensor, gt: torch.Tensor, occluded: torch.Tensor | None, low: torch.Tensor | None,
+               valid: torch.Tensor | None, device: str) -> torch.Tensor:
+    """Score the flow of network inputs ``a, b (1,3,h,w)`` against ``gt (1,2,H,W)`` with the bool masks
+    ``occluded``, ``low`` (low texture of frame 1) and ``valid`` ``(1,1,H,W)`` (None: all) into ``acc``,
+    the swapped frames too (``swap_consistency``), and zero flow into ``zero``; → the prediction."""
+    hw = tuple(gt.shape[-2:])
+    pred = network_flow(model, a, b, hw, device)
+    acc.add(pred, gt, occluded, low, valid)
+    acc.add_swapped(pred, network_flow(model, b, a, hw, device))
+    zero.add(torch.zeros_like(gt), gt, occluded, low, valid)
+    return pred
+
+
+@torch.no_grad()
+def evaluate_gt_pairs(model: FlowNetwork, pairs: Iterable[GTPair], device: str = "cpu",
+                      on_pair: Callable[[int, GTPair, torch.Tensor], None] | None = None) -> dict:
+    """EPE of ``model`` and of zero flow on scored pairs (frames at the network's size, ground truth with
+    its occluded, low-texture and valid masks) → ``{"pairs", "model", "zero_flow"}``, each an
+    :meth:`EPEAccumulator.result` (the model's with ``swap_consistency``). The one scorer of the
+    fine-tuning (before, every epoch, after) and of the prepared pairs in ``flow_pretrain``'s metrics. The
+    model runs in eval mode and is given back in its mode; ``on_pair(i, pair, prediction)`` sees each."""
+    was_training = model.training
+    model.eval()
+    acc, zero, n = EPEAccumulator(), EPEAccumulator(), 0
+    for i, g in enumerate(pairs):
+        pred = score_pair(model, acc, zero, g.img1, g.img2, g.flow, g.occluded, g.low_texture, g.valid,
+                          device)
+        if on_pair is not None:
+            on_pair(i, g, pred)
+        n += 1
+    model.train(was_training)
+    return {"pairs": n, "model": acc.result(), "zero_flow": zero.result()}

@@ -40,7 +40,7 @@ import torch
 from f2depth.epochs import EpochLoop
 from f2depth.epochs import fingerprint as hash_settings
 from f2depth.flow.augment import augment_batch
-from f2depth.flow.evaluation import EPEAccumulator
+from f2depth.flow.evaluation import evaluate_gt_pairs
 from f2depth.flow.finetune_data import FlowPairs, GTPair, collate
 from f2depth.flow.loss import SINTEL_FT, FlowLossConfig, flow_loss
 from f2depth.flow.network import FlowNetwork, make_optimizer
@@ -123,35 +123,6 @@ def batch_loss(flows_fw: Sequence[torch.Tensor], flows_bw: Sequence[torch.Tensor
     return finetune_loss(flows_fw, flows_bw, img1, img2, keypoints, keypoint_mask, cfg.patch_loss_config())
 
 
-@torch.no_grad()
-def evaluate_epe(model: FlowNetwork, pairs: Iterable[GTPair], device: str = "cpu") -> dict[str, Any]:
-    """EPE of the forward flow on ground-truth pairs: ``{"pairs", "epe_all", "epe_noc", "epe_occ",
-    "epe_low_texture", "pixels_*", "magnitude_ratio", "cosine", "swap_consistency"}`` (EPE None for empty
-    pixel sets or no pairs; ratio Σ|flow|/Σ|gt|, mean cosine and the swapped-frames check as in
-    :class:`EPEAccumulator`)."""
-    was_training = model.training
-    model.eval()
-    acc, n = EPEAccumulator(), 0
-    for g in pairs:
-        a, b = g.img1.to(device), g.img2.to(device)
-        pred = model(a, b, with_backward=False)[0][0].float().cpu()
-        acc.add(pred, g.flow, g.occluded, g.low_texture, g.valid)
-        acc.add_swapped(pred, model(b, a, with_backward=False)[0][0].float().cpu())
-        n += 1
-    model.train(was_training)
-    return {"pairs": n, **acc.result()}
-
-
-def zero_flow_epe(pairs: Iterable[GTPair]) -> dict[str, Any]:
-    """EPE of zero flow on the same pixels (how much the ground truth moves): as :func:`evaluate_epe`
-    (``magnitude_ratio`` and ``cosine`` are 0 by construction)."""
-    acc, n = EPEAccumulator(), 0
-    for g in pairs:
-        acc.add(torch.zeros_like(g.flow), g.flow, g.occluded, g.low_texture, g.valid)
-        n += 1
-    return {"pairs": n, **acc.result()}
-
-
 def epoch_generator(seed: int, epoch: int) -> torch.Generator:
     """The random stream of (0-based) ``epoch``: shuffling and augmentation."""
     return torch.Generator().manual_seed(seed * 1_000_003 + epoch)
@@ -225,7 +196,7 @@ def finetune(model: FlowNetwork, dataset: FlowPairs, cfg: FinetuneConfig, eval_p
                           "pixel occluded, so only the smoothness term trained; the flow is degenerate (e.g. "
                           "constant, forward = backward). Use a better pretrained model or set "
                           "flow_finetune.occlusion: range_map", stacklevel=2)
-        epe = evaluate_epe(model, eval_pairs, device) if eval_pairs else {}
+        epe = evaluate_gt_pairs(model, eval_pairs, device)["model"] if eval_pairs else {}
         return {k: epe.get(k) for k in EPE_COLUMNS}
 
     t0 = time.perf_counter()

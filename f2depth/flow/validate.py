@@ -21,27 +21,14 @@ import torch
 from f2depth.colour import flow_to_color
 from f2depth.data.images import to_tensor
 from f2depth.data.sintel import SintelPair, load_pair, resized_tensor
-from f2depth.flow.evaluation import EPEAccumulator, endpoint_error, low_texture_mask
+from f2depth.flow.evaluation import (
+    EPEAccumulator,
+    endpoint_error,
+    evaluate_gt_pairs,
+    low_texture_mask,
+    score_pair,
+)
 from f2depth.flow.network import FlowNetwork
-from f2depth.geometry import resize_flow
-
-
-def _flow(model: FlowNetwork, a: torch.Tensor, b: torch.Tensor, hw: tuple[int, int], device: str
-          ) -> torch.Tensor:
-    """Network input frames ``(1,3,h,w)`` in [0,1] → forward flow ``(1,2,H,W)`` resized to ``hw`` = (H, W)."""
-    return resize_flow(model(a.to(device), b.to(device), with_backward=False)[0][0], hw).cpu()
-
-
-@torch.no_grad()
-def _score(model, acc, zero, a, b, gt, occluded, low, valid, device) -> torch.Tensor:
-    """Score the flow of network inputs ``a, b (1,3,h,w)`` against ``gt (1,2,H,W)`` with the bool masks
-    ``occluded``, ``low`` (low texture of frame 1) and ``valid`` ``(1,1,H,W)`` (None: all)."""
-    hw = tuple(gt.shape[-2:])
-    pred = _flow(model, a, b, hw, device)
-    acc.add(pred, gt, occluded, low, valid)
-    acc.add_swapped(pred, _flow(model, b, a, hw, device))
-    zero.add(torch.zeros_like(gt), gt, occluded, low, valid)
-    return pred
 
 
 def _result(acc: EPEAccumulator, zero: EPEAccumulator, pairs: int) -> dict:
@@ -65,7 +52,7 @@ def evaluate_sintel(model: FlowNetwork, pairs: Sequence[SintelPair], size: tuple
         occ = torch.from_numpy(d["occluded"])[None, None]
         a, b = (resized_tensor(d[k], size).unsqueeze(0) for k in ("image1", "image2"))
         low = low_texture_mask(to_tensor(d["image1"]).unsqueeze(0))
-        pred = _score(model, acc, zero, a, b, gt, occ, low, None, device)
+        pred = score_pair(model, acc, zero, a, b, gt, occ, low, None, device)
         if figure_dir is not None and i in chosen:
             save_figure(Path(figure_dir) / f"{pair.sequence}_{pair.pass_name}_{pair.frame:04d}.png",
                         d["image1"], gt, pred)
@@ -81,7 +68,7 @@ def evaluate_generated(model: FlowNetwork, pairs: Sequence[torch.Tensor], device
     chosen = set(np.linspace(0, len(img1) - 1, figures).round().astype(int).tolist()) if figures else set()
     for i in range(len(img1)):
         a, b = img1[i:i + 1], img2[i:i + 1]
-        pred = _score(model, acc, zero, a, b, flow[i:i + 1], occluded[i:i + 1], low_texture_mask(a), None,
+        pred = score_pair(model, acc, zero, a, b, flow[i:i + 1], occluded[i:i + 1], low_texture_mask(a), None,
                       device)
         if figure_dir is not None and i in chosen:
             rgb = (a[0].permute(1, 2, 0) * 255).round().to(torch.uint8).numpy()
@@ -104,13 +91,13 @@ def evaluate_prepared(model: FlowNetwork, prepared_root: str | os.PathLike, max_
     if not pairs:
         return None
     chosen = set(np.linspace(0, len(pairs) - 1, figures).round().astype(int).tolist()) if figures else set()
-    acc, zero = EPEAccumulator(), EPEAccumulator()
-    for i, g in enumerate(gt_pairs(ds, pairs)):
-        pred = _score(model, acc, zero, g.img1, g.img2, g.flow, g.occluded, g.low_texture, g.valid, device)
+
+    def draw(i: int, g, pred: torch.Tensor) -> None:
         if figure_dir is not None and i in chosen:
             rgb = (g.img1[0].permute(1, 2, 0) * 255).round().to(torch.uint8).numpy()
             save_figure(Path(figure_dir) / f"prepared_{g.pair_id}.png", rgb, g.flow * g.valid, pred)
-    return _result(acc, zero, len(pairs))
+
+    return evaluate_gt_pairs(model, gt_pairs(ds, pairs), device, draw)
 
 
 def save_figure(path: str | os.PathLike, image1: np.ndarray, gt: torch.Tensor, pred: torch.Tensor) -> None:
