@@ -27,6 +27,12 @@ deletes the file (:func:`clear_state`) once its own outputs are written, never b
 epoch's row: validation, the learning rate. ``on_epoch(row)`` (main process, after the save) mirrors each
 row, e.g. to MLflow; on resume it first replays every row already in the history, so a new logger gets
 the whole curve.
+
+**Random streams.** No trainer draws from a global generator: every epoch's shuffling and augmentation
+come from generators derived from ``(seed, epoch)`` alone — :func:`epoch_generator` (torch: an epoch's
+order and batch-level draws), :func:`epoch_rng` (numpy: generated training pairs) and
+:func:`sample_generator` (one per sample and stream, independent of DataLoader workers and batch order) —
+so a resumed run draws exactly what an unbroken one draws.
 """
 
 from __future__ import annotations
@@ -53,6 +59,28 @@ from f2depth.io import csv_text, torch_save, write_text
 FORMAT = "f2depth.train_state"
 VERSION = 2
 log = logging.getLogger(__name__)
+
+
+def epoch_generator(seed: int, epoch: int) -> torch.Generator:
+    """The torch stream of (1-based) ``epoch`` of a run seeded ``seed``: its order and batch-level draws."""
+    return torch.Generator().manual_seed(seed * 1_000_003 + epoch - 1)
+
+
+def epoch_rng(seed: int, epoch: int) -> np.random.Generator:
+    """The numpy stream of (1-based) ``epoch`` (SeedSequence hashing of ``[seed, epoch]``)."""
+    return np.random.default_rng([seed, epoch])
+
+
+def sample_seed(seed: int, epoch: int, index: int, stream: int) -> int:
+    """A 63-bit seed that depends only on (seed, epoch, index, stream) (numpy SeedSequence hashing)."""
+    ss = np.random.SeedSequence([int(seed) & 0xFFFFFFFF, int(epoch), int(index), int(stream)])
+    return int(ss.generate_state(1, dtype=np.uint64)[0] >> np.uint64(1))
+
+
+def sample_generator(seed: int, epoch: int, index: int, stream: int) -> torch.Generator:
+    """The torch stream of sample ``index`` in ``epoch`` for one purpose ``stream`` (augmentation,
+    points…)."""
+    return torch.Generator().manual_seed(sample_seed(seed, epoch, index, stream))
 
 
 class NonFiniteEpochError(FloatingPointError):

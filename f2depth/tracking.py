@@ -161,6 +161,16 @@ class StageRun:
             with self._guard():
                 self._client.log_batch(self.run_id, metrics=items)
 
+    def log_epoch(self, row: Mapping[str, Any]) -> None:
+        """One history row (:class:`f2depth.epochs.EpochLoop`'s): each number under its history.csv column
+        name, at step = the row's epoch — the one name scheme of every trainer's curves."""
+        self.log_metrics({k: v for k, v in row.items() if k != "epoch"}, step=int(row["epoch"]))
+
+    def log_summary(self, metrics: Mapping[str, Any]) -> None:
+        """A stage's metrics file (or one seed's part of it): each number under its path in the JSON, keys
+        joined with ``.`` (``finetuned.test.epe_all``) — the one name scheme of every stage's results."""
+        self.log_metrics(metrics)
+
     def log_artifact(self, path: str | os.PathLike, artifact_path: str | None = None) -> None:
         """Upload a file (into ``artifact_path``) or a folder (into ``artifact_path``, default its name)."""
         if not self.active:
@@ -258,6 +268,6 @@ def mirror_stage(stage: str, params: Mapping[str, Any], metrics: Mapping[str, An
     """Mirror a finished stage that needs no per-epoch logging (synth, prepare, keypoints, figures):
     its params, the numbers of its metrics file and ``artifacts`` (files or folders), as a child run."""
     with stage_run(stage, params) as run:
-        run.log_metrics(metrics)
+        run.log_summary(metrics)
         for path in artifacts:
             run.log_artifact(path)

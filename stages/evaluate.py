@@ -110,7 +110,7 @@ def main(argv: list[str]) -> None:
             write_text(out_dir / f"{name}.csv", rows_csv(items))
         save_npz(out_dir / "figures.npz", **(kept or {}))
         write_json(Path(args.metrics) / f"{args.variant}.json", doc)
-        run.log_metrics({k: v for k, v in doc.items() if k != "variant"})
+        run.log_summary(doc)
         if run.active:  # what the variant was trained with, for comparing runs in MLflow
             run.log_params({"test_set_sizes": sizes, "trained": {k: trained.get(k) for k in TRAINED_KEYS}})
         run.log_artifact(Path(args.metrics) / f"{args.variant}.json")

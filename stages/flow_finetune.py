@@ -26,7 +26,7 @@ from f2depth import params as P
 from f2depth import threads, tracking
 from f2depth.data.errors import DataError
 from f2depth.data.prepared import PreparedSet
-from f2depth.epochs import file_digest, write_history
+from f2depth.epochs import clear_state, file_digest, write_history
 from f2depth.flow.checkpoint import load_flow_model, save_flow_model
 from f2depth.flow.evaluation import evaluate_gt_pairs
 from f2depth.flow.finetune import (
@@ -112,9 +112,12 @@ def main(argv: list[str]) -> None:
     fingerprint = {"pretrained_sha256": file_digest(pretrained), "prepared_sha256": file_digest(ds.root),
                    "keypoints_sha256": file_digest(kp_path) if keypoints is not None else None}
     with tracking.stage_run("flow_finetune", p, variant=loss) as run:
-        def on_epoch(epoch: int, row: dict, history: list[dict]) -> None:
-            write_history(history_csv, history, HISTORY_COLUMNS)
-            run.log_metrics({k: v for k, v in row.items() if k != "epoch"}, step=epoch)
+        rows: list[dict] = []
+
+        def on_epoch(row: dict) -> None:  # also each row a resumed run replays
+            rows.append(row)
+            write_history(history_csv, rows, HISTORY_COLUMNS)
+            run.log_epoch(row)
 
         info = finetune(model, FlowPairs(ds, split.train, keypoints), cfg, test, resume_path, fingerprint,
                         device, stage.workers, on_epoch)
@@ -134,11 +137,11 @@ def main(argv: list[str]) -> None:
                    "epochs_run": info["epochs_run"], "resumed_from": info["resumed_from"],
                    "seconds": round(time.perf_counter() - t0, 1)}
         write_json(metrics_json, metrics)
-        run.log_metrics({"final": {"pretrained": before, "finetuned": after}})
+        run.log_summary(metrics)
         run.log_artifact(model_path)
         run.log_artifact(history_csv)
         run.log_artifact(metrics_json)
-    resume_path.unlink(missing_ok=True)
+    clear_state(resume_path)
     for name, m in (("pretrained", before["test"]), ("fine-tuned", after["test"])):
         print(f"flow_finetune[{loss}] {name}: EPE all {fmt(m['epe_all'])}, noc {fmt(m['epe_noc'])}, "
               f"low-texture {fmt(m['epe_low_texture'])}, |f|/|gt| {fmt(m['magnitude_ratio'], 2)}, "

@@ -98,7 +98,7 @@ def pretrain_on_chairs(model, stage: PretrainStage, seed: int, train_frames: lis
     generated = chairs_route.heldout_pairs(cfg, seed, pool)
     result = chairs_route.pretrain_chairs(
         model, pool, cfg, seed, stage.network, generated, stage.resume_dir, device,
-        on_epoch=lambda epoch, st: run.log_metrics({f"train.{k}": v for k, v in st.items()}, epoch))
+        on_epoch=run.log_epoch)
     return result, generated
 
 
@@ -129,7 +129,7 @@ def main(argv: list[str]) -> None:
             model = build_network(stage.network)
             metrics["training"] = pretrain(
                 model, list_pairs(root, passes, train_seqs), cfg, stage.resume_dir, device,
-                on_epoch=lambda epoch, st: run.log_metrics({f"train.{k}": v for k, v in st.items()}, epoch))
+                on_epoch=run.log_epoch)
         made_with = asdict(stage.chairs) if metrics["source"] == "chairs" else vars(cfg)
         save_flow_model(stage.model, model, config={"origin": metrics["source"], **made_with},
                         params=P.get(p, "flow_pretrain"))
@@ -147,8 +147,7 @@ def main(argv: list[str]) -> None:
         columns = chairs_route.HISTORY_COLUMNS if metrics["source"] == "chairs" else HISTORY_COLUMNS
         write_history(HISTORY, metrics.get("training", {}).get("history", []), columns)
         write_json(METRICS, metrics)
-        run.log_metrics({k: v for k, v in metrics.items()
-                         if k.startswith(("heldout_", "prepared", "generated"))})
+        run.log_summary(metrics)
         run.log_artifact(stage.model)
         run.log_artifact(HISTORY)
         run.log_artifact(figures, "figures")

@@ -576,8 +576,9 @@ DEPTH_EPOCH = 1
 def flow_finetune_step() -> Values:
     """One fine-tuning ``train_step`` of a seeded random PWC-Lite in float64, ``patch`` and ``full``."""
     from f2depth.data.prepared import PreparedSet
+    from f2depth.epochs import epoch_generator
     from f2depth.flow import PWCLite
-    from f2depth.flow.finetune import epoch_generator, make_optimizer, prepare_batch, train_step
+    from f2depth.flow.finetune import make_optimizer, prepare_batch, train_step
     from f2depth.flow.finetune_data import FlowPairs, collate
     from f2depth.keypoints import KeypointFile
 
@@ -602,8 +603,8 @@ def flow_finetune_step() -> Values:
     return out
 
 
-#: The epoch whose draws the flow batch uses: pair 1 flipped, pair 0 jittered.
-FLOW_EPOCH = 1
+#: The (1-based) epoch whose draws the flow batch uses: pair 1 flipped, pair 0 jittered.
+FLOW_EPOCH = 2
 
 
 # ---- one evaluation ------------------------------------------------------------------------------------

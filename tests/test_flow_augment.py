@@ -9,6 +9,7 @@ from f2depth.flow.augment import (
     AugmentConfig,
     augment_batch,
     color_jitter,
+    flip_and_swap,
     hflip_keypoints,
 )
 from f2depth.flow.patch_loss import FinetuneLossConfig, finetune_loss, pad_keypoints
@@ -17,6 +18,22 @@ from f2depth.geometry import warp
 
 def rand_img(b=2, h=12, w=16, seed=0):
     return torch.rand(b, 3, h, w, generator=torch.Generator().manual_seed(seed))
+
+
+def test_flip_and_swap_is_arflows_per_sample_draw_from_the_generator():
+    a, b = rand_img(64, seed=1), rand_img(64, seed=2)
+    x, y = flip_and_swap(a, b, torch.Generator().manual_seed(3))
+    again = flip_and_swap(a, b, torch.Generator().manual_seed(3))
+    assert torch.equal(x, again[0]) and torch.equal(y, again[1])
+    kinds = []
+    for i in range(64):
+        for flip in (False, True):
+            p, q = (a[i].flip(-1), b[i].flip(-1)) if flip else (a[i], b[i])
+            for swap in (False, True):
+                if torch.equal(x[i], q if swap else p) and torch.equal(y[i], p if swap else q):
+                    kinds.append((flip, swap))
+    assert len(kinds) == 64  # every sample is one of the four, both frames treated alike
+    assert len(set(kinds)) == 4 and 8 < sum(f for f, _ in kinds) < 56 and 8 < sum(s for _, s in kinds) < 56
 
 
 def test_jitter_shares_parameters_between_frames_and_is_seeded():

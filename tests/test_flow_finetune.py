@@ -199,7 +199,7 @@ def test_resume_after_interruption_gives_the_same_weights(prepared, tmp_path):
     class Crash(RuntimeError):
         pass
 
-    def crash(epoch, row, history):
+    def crash(row):
         raise Crash
 
     with pytest.raises(Crash):
@@ -213,8 +213,8 @@ def test_resume_after_interruption_gives_the_same_weights(prepared, tmp_path):
     # the loss settings are part of the fingerprint: a run with other settings starts afresh
     seen = []
 
-    def first_epoch(epoch, row, history):
-        seen.append(epoch)
+    def first_epoch(row):
+        seen.append(row["epoch"])
         raise Crash
 
     for changed in (replace(cfg, backward=False), replace(cfg, w_scales=(1.0,)), replace(cfg, amp=True)):

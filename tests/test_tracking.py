@@ -62,6 +62,26 @@ def test_stages_share_one_parent_and_log(mlflow_uri, tmp_path):
     assert [a.path for a in client.list_artifacts(first)] == ["table.md"]
 
 
+def test_metric_names_are_the_history_columns_and_the_metrics_file_paths(mlflow_uri):
+    """One scheme (issue 24 item 5): curves under their history.csv column at step = epoch, results under
+    their metrics-JSON path; strings, bools, None and lists are not metrics."""
+    history = [{"epoch": 1, "loss": 2.0, "epe_all": None, "phase": "features", "steps": 4},
+               {"epoch": 2, "loss": 1.5, "epe_all": 3.0, "phase": "all", "steps": 4}]
+    summary = {"loss": "patch", "finetuned": {"test": {"epe_all": 2.5, "pairs": 5}}, "ground_truth": True,
+               "test_scenes": ["a"], "history": history}
+    with tracking.stage_run("flow_finetune", {}, variant="patch") as run:
+        for row in history:
+            run.log_epoch(row)
+        run.log_summary(summary)
+        run_id = run.run_id
+    client = MlflowClient(tracking_uri=mlflow_uri)
+    metrics = client.get_run(run_id).data.metrics
+    assert set(metrics) == {"loss", "epe_all", "steps", "finetuned.test.epe_all", "finetuned.test.pairs"}
+    assert [(m.step, m.value) for m in client.get_metric_history(run_id, "loss")] == [(1, 2.0), (2, 1.5)]
+    assert [(m.step, m.value) for m in client.get_metric_history(run_id, "epe_all")] == [(2, 3.0)]
+    assert metrics["finetuned.test.epe_all"] == 2.5
+
+
 def test_failed_stage_marks_run_failed(mlflow_uri):
     with pytest.raises(RuntimeError), tracking.stage_run("synth", {"synth": {}}) as run:
         rid = run.run_id

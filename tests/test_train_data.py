@@ -8,6 +8,7 @@ import torch
 import train_fakes
 
 from f2depth.data.prepared import PreparedSet
+from f2depth.epochs import sample_generator as generator
 from f2depth.keypoints import KeypointFile, save_keypoints
 from f2depth.train import augment as A
 from f2depth.train.data import (
@@ -15,7 +16,6 @@ from f2depth.train.data import (
     DataConfig,
     TupleDataset,
     epoch_order,
-    generator,
     rank_indices,
 )
 

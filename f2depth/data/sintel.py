@@ -170,16 +170,15 @@ def resized_tensor(rgb: np.ndarray, size: tuple[int, int] | None = None) -> torc
 class SintelPairs(torch.utils.data.Dataset):
     """Unsupervised training pairs: ``(img1, img2)`` float ``(3,h,w)`` in [0,1] resized to ``size``.
 
-    With ``augment`` (ARFlow's ``transforms/co_transforms.py``): horizontal flip with p = 0.5 and
-    frame-order swap with p = 0.5, drawn from ``torch``'s global generator (seed it for repeatability).
+    Unaugmented: ARFlow's flips and swaps are drawn per batch from the epoch's generator
+    (:func:`f2depth.flow.augment.flip_and_swap`), never from a global one.
     """
 
-    def __init__(self, pairs: Sequence[SintelPair], size: tuple[int, int], augment: bool = True) -> None:
+    def __init__(self, pairs: Sequence[SintelPair], size: tuple[int, int]) -> None:
         if not pairs:
             raise ValueError("SintelPairs: no pairs")
         self.pairs = list(pairs)
         self.size = size
-        self.augment = augment
 
     def __len__(self) -> int:
         return len(self.pairs)
@@ -188,10 +187,4 @@ class SintelPairs(torch.utils.data.Dataset):
         pair = self.pairs[index]
         im1 = read_image(pair.image1)
         im2 = read_image(pair.image2, im1.shape[:2])
-        a, b = resized_tensor(im1, self.size), resized_tensor(im2, self.size)
-        if self.augment:
-            if torch.rand(()) < 0.5:
-                a, b = a.flip(-1), b.flip(-1)
-            if torch.rand(()) < 0.5:
-                a, b = b, a
-        return a, b
+        return resized_tensor(im1, self.size), resized_tensor(im2, self.size)

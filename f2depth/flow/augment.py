@@ -79,3 +79,15 @@ def augment_batch(batch: dict[str, torch.Tensor], gen: torch.Generator, cfg: Aug
     out.update(img1=img1, img2=img2, keypoints=kp, flipped=flip)
     out["net1"], out["net2"] = color_jitter([img1, img2], gen, cfg)
     return out
+
+
+def flip_and_swap(img1: torch.Tensor, img2: torch.Tensor, gen: torch.Generator, p: float = 0.5
+                  ) -> tuple[torch.Tensor, torch.Tensor]:
+    """ARFlow's pretraining augmentation (its ``transforms/co_transforms.py``): per sample of the frames
+    ``(B,3,H,W)``, a horizontal flip of both frames with probability ``p``, then a swap of the frame order
+    with probability ``p``, drawn from ``gen`` (flips for the batch first, then swaps)."""
+    b = img1.shape[0]
+    flip = (torch.rand(b, generator=gen) < p).reshape(b, 1, 1, 1)
+    swap = (torch.rand(b, generator=gen) < p).reshape(b, 1, 1, 1)
+    a, c = torch.where(flip, img1.flip(-1), img1), torch.where(flip, img2.flip(-1), img2)
+    return torch.where(swap, c, a), torch.where(swap, a, c)

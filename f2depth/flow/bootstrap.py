@@ -37,7 +37,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from f2depth.epochs import EpochLoop
+from f2depth.epochs import EpochLoop, epoch_rng
 from f2depth.epochs import fingerprint as hash_settings
 from f2depth.flow.correlation import MAX_DISPLACEMENT, correlation
 from f2depth.flow.evaluation import EPEAccumulator, endpoint_error
@@ -311,12 +311,12 @@ def bootstrap_start(model: FlowNetwork, calibration: tuple[torch.Tensor, torch.T
 def pretrain_chairs(model: FlowNetwork, pool: torch.Tensor, cfg: BootstrapConfig, seed: int, network: str,
                     heldout: Sequence[torch.Tensor], resume_dir: str | os.PathLike | None = None,
                     device: str = "cpu",
-                    on_epoch: Callable[[int, dict[str, float]], None] | None = None,
+                    on_epoch: Callable[[dict[str, Any]], None] | None = None,
                     progress: bool = True) -> dict[str, Any]:
     """Train ``model`` in place (module docstring) → ``{"epochs_run", "resumed_from", "seconds", "history",
     "start", "after_features", "final"}`` (the last three: :func:`heldout_scores` on the generated
     ``heldout`` pairs, :func:`heldout_pairs`, after the init, after phase A and at the end).
-    ``on_epoch(epoch, row)`` as in :func:`f2depth.flow.pretrain.pretrain`."""
+    ``on_epoch(row)`` as in :func:`f2depth.flow.pretrain.pretrain`."""
     model.to(device).train()
     opt_a = make_optimizer(model.feature_module(), _Lr(cfg.feature_lr, cfg.weight_decay))
     opt_b = make_optimizer(model, _Lr(cfg.lr, cfg.weight_decay))
@@ -336,7 +336,7 @@ def pretrain_chairs(model: FlowNetwork, pool: torch.Tensor, cfg: BootstrapConfig
         nonlocal phase, b_step
         phase = "features" if epoch <= cfg.feature_epochs else "all"
         b_step = max(epoch - cfg.feature_epochs - 1, 0) * cfg.steps_per_epoch  # also right after a resume
-        return _Batches(cfg, pool, np.random.default_rng([seed, epoch]))
+        return _Batches(cfg, pool, epoch_rng(seed, epoch))
 
     def step(batch: tuple[torch.Tensor, ...]) -> dict[str, float]:
         img1, img2, gt, occ = (t.to(device) for t in batch)
@@ -369,9 +369,7 @@ def pretrain_chairs(model: FlowNetwork, pool: torch.Tensor, cfg: BootstrapConfig
 
     t0 = time.perf_counter()
     loop.run_epochs(batches, step, end_epoch=end_epoch,
-                    on_epoch=None if on_epoch is None else
-                    lambda row: on_epoch(row["epoch"], {k: v for k, v in row.items()
-                                                        if k != "epoch" and isinstance(v, (int, float))}))
+                    on_epoch=on_epoch)
     model.eval()
     scores["final"] = heldout_scores(model, test, cfg, device)
     return {"epochs_run": cfg.total_epochs - loop.resumed_from, "resumed_from": loop.resumed_from,

@@ -37,7 +37,7 @@ from typing import Any
 
 import torch
 
-from f2depth.epochs import EpochLoop
+from f2depth.epochs import EpochLoop, epoch_generator
 from f2depth.epochs import fingerprint as hash_settings
 from f2depth.flow.augment import augment_batch
 from f2depth.flow.evaluation import evaluate_gt_pairs
@@ -123,11 +123,6 @@ def batch_loss(flows_fw: Sequence[torch.Tensor], flows_bw: Sequence[torch.Tensor
     return finetune_loss(flows_fw, flows_bw, img1, img2, keypoints, keypoint_mask, cfg.patch_loss_config())
 
 
-def epoch_generator(seed: int, epoch: int) -> torch.Generator:
-    """The random stream of (0-based) ``epoch``: shuffling and augmentation."""
-    return torch.Generator().manual_seed(seed * 1_000_003 + epoch)
-
-
 def prepare_batch(batch: dict[str, torch.Tensor], cfg: FinetuneConfig, gen: torch.Generator
                   ) -> dict[str, torch.Tensor]:
     """Augmented batch (``cfg.augment``) with ``net1``, ``net2`` = what the network sees."""
@@ -160,13 +155,14 @@ def train_step(model: FlowNetwork, optimizer: torch.optim.Optimizer, batch: dict
 def finetune(model: FlowNetwork, dataset: FlowPairs, cfg: FinetuneConfig, eval_pairs: Iterable[GTPair] = (),
              resume_path: str | os.PathLike | None = None, fingerprint: Mapping[str, Any] | None = None,
              device: str = "cpu", workers: int = 0,
-             on_epoch: Callable[[int, dict[str, Any], list[dict[str, Any]]], None] | None = None,
+             on_epoch: Callable[[dict[str, Any]], None] | None = None,
              progress: bool = True) -> dict[str, Any]:
     """Fine-tune ``model`` in place; returns ``{"history", "epochs_run", "resumed_from", "seconds"}``.
 
-    ``eval_pairs`` (kept in memory) are scored after every epoch; ``on_epoch(epoch, row, history)`` is
-    called after each epoch (1-based) once its state is saved, and first for each epoch a resumed run
-    already has. ``history`` rows have :data:`HISTORY_COLUMNS` (EPE None without ground truth).
+    ``eval_pairs`` (kept in memory) are scored after every epoch; ``on_epoch(row)`` gets each epoch's
+    history row (1-based ``epoch``) once its state is saved, and first each row a resumed run already has.
+    Each epoch's order and augmentation come from :func:`f2depth.epochs.epoch_generator` (seed, epoch).
+    ``history`` rows have :data:`HISTORY_COLUMNS` (EPE None without ground truth).
     """
     eval_pairs = list(eval_pairs)
     model.to(device)
@@ -179,7 +175,7 @@ def finetune(model: FlowNetwork, dataset: FlowPairs, cfg: FinetuneConfig, eval_p
     loop.restore()
 
     def batches(epoch: int):
-        gen = epoch_generator(cfg.seed, epoch - 1)
+        gen = epoch_generator(cfg.seed, epoch)
         order = torch.randperm(len(dataset), generator=gen).tolist()
         model.train()
         for batch in torch.utils.data.DataLoader(dataset, batch_size=cfg.batch_size, sampler=order,
@@ -200,8 +196,7 @@ def finetune(model: FlowNetwork, dataset: FlowPairs, cfg: FinetuneConfig, eval_p
         return {k: epe.get(k) for k in EPE_COLUMNS}
 
     t0 = time.perf_counter()
-    loop.run_epochs(batches, step, end_epoch=end_epoch, on_epoch=None if on_epoch is None
-                    else lambda row: on_epoch(row["epoch"], row, loop.history))
+    loop.run_epochs(batches, step, end_epoch=end_epoch, on_epoch=on_epoch)
     model.eval()
     return {"history": loop.history, "epochs_run": max(cfg.epochs - loop.resumed_from, 0),
             "resumed_from": loop.resumed_from, "seconds": round(time.perf_counter() - t0, 1)}

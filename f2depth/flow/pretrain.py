@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import os
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -31,8 +31,9 @@ from typing import Any
 import torch
 
 from f2depth.data.sintel import SintelPair, SintelPairs
-from f2depth.epochs import EpochLoop, clear_state
+from f2depth.epochs import EpochLoop, clear_state, epoch_generator
 from f2depth.epochs import fingerprint as hash_settings
+from f2depth.flow.augment import flip_and_swap
 from f2depth.flow.loss import SINTEL_FT, SINTEL_RAW, flow_loss
 from f2depth.flow.network import FlowNetwork, make_optimizer, msra_init
 from f2depth.precision import backward_and_step
@@ -83,16 +84,17 @@ def clear_resume(resume_dir: str | os.PathLike) -> None:
 
 def pretrain(model: FlowNetwork, pairs: Sequence[SintelPair], cfg: PretrainConfig,
              resume_dir: str | os.PathLike | None = None, device: str = "cpu",
-             on_epoch: Callable[[int, dict[str, float]], None] | None = None,
+             on_epoch: Callable[[dict[str, Any]], None] | None = None,
              progress: bool = True) -> dict[str, Any]:
     """Train ``model`` in place on ``pairs`` → ``{"epochs_run", "resumed_from", "seconds", "history"}``.
 
-    ``on_epoch(epoch, stats)`` is called after each epoch (1-based epoch; mean loss terms, steps taken and
-    skipped, ``census``, ``seconds``), and first for each epoch a resumed run already has.
+    ``on_epoch(row)`` (:class:`f2depth.epochs.EpochLoop`'s hook) gets each epoch's history row (``epoch``,
+    mean loss terms, steps taken and skipped, ``census``, ``seconds``), first each row a resumed run has.
+    Each epoch's order and flips / swaps come from :func:`f2depth.epochs.epoch_generator` (seed, epoch).
     """
     model.to(device).train()
     optim = make_optimizer(model, cfg)
-    dataset = SintelPairs(pairs, (cfg.height, cfg.width), augment=True)
+    dataset = SintelPairs(pairs, (cfg.height, cfg.width))
     loop = EpochLoop("flow_pretrain", cfg.epochs, {"model": model, "optimizer": optim},
                      Path(resume_dir) / "last.pt" if resume_dir is not None else None,
                      run_fingerprint(cfg, pairs), progress=progress)
@@ -101,11 +103,13 @@ def pretrain(model: FlowNetwork, pairs: Sequence[SintelPair], cfg: PretrainConfi
 
     loss_cfg = SINTEL_RAW
 
-    def batches(epoch: int):
+    def batches(epoch: int) -> Iterator[tuple[torch.Tensor, torch.Tensor]]:
         nonlocal loss_cfg
         loss_cfg = cfg.loss_config(epoch - 1)
-        torch.manual_seed(cfg.seed * 100_003 + epoch - 1)  # shuffling and augmentation of this epoch
-        return torch.utils.data.DataLoader(dataset, batch_size=cfg.batch_size, shuffle=True)
+        gen = epoch_generator(cfg.seed, epoch)
+        order = torch.randperm(len(dataset), generator=gen).tolist()
+        for img1, img2 in torch.utils.data.DataLoader(dataset, batch_size=cfg.batch_size, sampler=order):
+            yield flip_and_swap(img1, img2, gen)
 
     def step(batch: list[torch.Tensor]) -> dict[str, float]:
         img1, img2 = batch[0].to(device), batch[1].to(device)
@@ -119,8 +123,7 @@ def pretrain(model: FlowNetwork, pairs: Sequence[SintelPair], cfg: PretrainConfi
 
     t0 = time.perf_counter()
     loop.run_epochs(batches, step, end_epoch=lambda row: {"census": float(loss_cfg is SINTEL_FT)},
-                    on_epoch=None if on_epoch is None else
-                    lambda row: on_epoch(row["epoch"], {k: v for k, v in row.items() if k != "epoch"}))
+                    on_epoch=on_epoch)
     model.eval()
     return {"epochs_run": cfg.epochs - loop.resumed_from, "resumed_from": loop.resumed_from,
             "seconds": round(time.perf_counter() - t0, 1), "history": loop.history}

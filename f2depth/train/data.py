@@ -15,8 +15,9 @@ An item is a dict of tensors (collated by the default DataLoader collate):
   sample; the identity where the pair has no reliable prior — and ``prior_prev_ok``, ``prior_next_ok`` bool.
 
 Reproducibility: the augmentation and the fill-up points of item ``i`` in epoch ``e`` are drawn from
-generators seeded with ``(seed, e, i)`` only (``sample_seed``), so they do not depend on worker
-processes, on the order items are read in, or on whether a run was interrupted and resumed.
+generators seeded with ``(seed, e, i)`` only (:func:`f2depth.epochs.sample_generator`), so they do not
+depend on worker processes, on the order items are read in, or on whether a run was interrupted and
+resumed.
 """
 
 from __future__ import annotations
@@ -24,12 +25,12 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 
-import numpy as np
 import torch
 from torch.utils.data import Dataset
 
 from f2depth.data.images import to_tensor
 from f2depth.data.prepared import PreparedSet
+from f2depth.epochs import sample_generator
 from f2depth.keypoints import KeypointFile, fill_up
 from f2depth.poses.store import PosePriors
 from f2depth.train import augment as A
@@ -39,16 +40,6 @@ from f2depth.train import augment as A
 STREAM_AUGMENT = 0
 STREAM_POINTS = 1
 STREAM_ORDER = 2
-
-
-def sample_seed(seed: int, epoch: int, index: int, stream: int) -> int:
-    """A 63-bit seed that depends only on (seed, epoch, index, stream) (numpy SeedSequence hashing)."""
-    ss = np.random.SeedSequence([int(seed) & 0xFFFFFFFF, int(epoch), int(index), int(stream)])
-    return int(ss.generate_state(1, dtype=np.uint64)[0] >> np.uint64(1))
-
-
-def generator(seed: int, epoch: int, index: int, stream: int) -> torch.Generator:
-    return torch.Generator().manual_seed(sample_seed(seed, epoch, index, stream))
 
 
 @dataclass(frozen=True)
@@ -98,7 +89,7 @@ class TupleDataset(Dataset):
         kp = self.keypoints.tensor(self.prepared.frame_index(t.target))
         segments = torch.from_numpy(self.prepared.segments(t.tuple_id))
         K = self.K.clone()
-        d = A.draw(self.config.augment_config, generator(self.seed, epoch, index, STREAM_AUGMENT))
+        d = A.draw(self.config.augment_config, sample_generator(self.seed, epoch, index, STREAM_AUGMENT))
         flipped = self.config.augment and d.flip
         if flipped:
             frames = [A.flip_image(f) for f in frames]
@@ -108,7 +99,7 @@ class TupleDataset(Dataset):
         stacked = torch.stack(frames)
         aug = A.color_jitter(stacked, d) if self.config.augment else stacked
         points, real = fill_up(kp[:, :2], self.config.num_points, self.height, self.width,
-                               generator(self.seed, epoch, index, STREAM_POINTS))
+                               sample_generator(self.seed, epoch, index, STREAM_POINTS))
         return {
             "target": frames[0], "prev": frames[1], "next": frames[2],
             "target_aug": aug[0], "prev_aug": aug[1], "next_aug": aug[2],
@@ -144,7 +135,7 @@ class EpochView(Dataset):
 
 def epoch_order(n: int, seed: int, epoch: int) -> list[int]:
     """The shuffled order of ``n`` items in ``epoch``: a function of (seed, epoch) only."""
-    g = torch.Generator().manual_seed(sample_seed(seed, epoch, 0, STREAM_ORDER))
+    g = sample_generator(seed, epoch, 0, STREAM_ORDER)
     return [int(i) for i in torch.randperm(n, generator=g)]
 
 

@@ -160,9 +160,7 @@ def train_variant(
                            state_every=s.state_every),
                 ctx=ctx, checkpoint=state_file, resume=resume, fingerprint=run_fps[seed],
                 validate=_measure(validator, truth, ctx.device),
-                on_epoch=lambda row, run=run: run.log_metrics(
-                    {k: v for k, v in row.items() if k != "epoch" and v is not None},
-                    step=int(row["epoch"])),
+                on_epoch=run.log_epoch,
             )  # fmt: skip
             summary = {"seed": seed, **_summary(result)}
             if ctx.is_main:
@@ -170,7 +168,7 @@ def train_variant(
                     log.info("seed %d: resumed after epoch %d (%s)", seed, result.resumed_from, state_file)
                 save_checkpoint(build_dir / f"seed{seed}.pt", model, params=s.as_dict(),
                                 variant=s.variant, seed=seed, history=result.history)
-                run.log_metrics({f"final_{k}": v for k, v in summary["final_losses"].items()})
+                run.log_summary(summary)  # this seed's entry of the metrics file's per_seed
         per_seed.append(summary)
         if seed == s.seeds[0]:
             main_history = result.history
