@@ -33,7 +33,7 @@ from f2depth import threads, tracking
 from f2depth.data.errors import DataError
 from f2depth.data.nyu_labeled import GT_KEYS
 from f2depth.data.samples import limit
-from f2depth.depth import load_checkpoint, read_checkpoint
+from f2depth.depth import model_from_checkpoint, read_checkpoint
 from f2depth.eval import registry
 from f2depth.eval.suite import SuiteConfig, evaluate_model, metrics_document, model_disparity, rows_csv
 from f2depth.io import save_npz, write_json, write_text
@@ -81,7 +81,11 @@ def main(argv: list[str]) -> None:
         raise DataError(", ".join(missing), "not found", f"run `dvc repro train_depth@{args.variant}` "
                         "(train_depth.seeds lists the seeds to evaluate)")
     # every seed's model before any work: a file that does not fit ends the stage before minutes of scoring
-    models = [load_checkpoint(f, cfg.device, decoder_upsample=cfg.decoder_upsample).eval() for f in files]
+    models, trained = [], None
+    for f in files:  # each file read once; the first seed's training params go to the metrics file
+        ckpt = read_checkpoint(f)
+        models.append(model_from_checkpoint(ckpt, f, cfg.device, cfg.decoder_upsample).eval())
+        trained = ckpt["params"] if trained is None else trained
     sets = load_sets(p, cfg.datasets, stage.max_images)
     out_dir = Path(args.reports) / args.variant
     t0 = time.perf_counter()
@@ -98,7 +102,6 @@ def main(argv: list[str]) -> None:
                 rows.setdefault(name, []).extend({"seed": seed, **row} for row in items)
             kept = r.kept if kept is None else kept
             print(f"evaluate[{args.variant}] seed {seed}: " + summary_line(r.headline))
-        trained = read_checkpoint(files[0])["params"]
         doc = metrics_document(args.variant, seeds, headlines) | {
             "decoder_upsample": cfg.decoder_upsample,
             "trained_with": {"flow_model": trained.get("flow_model"), "weights": trained.get("weights")}}

@@ -5,9 +5,10 @@ from f2depth.depth.model import (
     DepthModel,
     DepthModelConfig,
     load_checkpoint,
+    model_from_checkpoint,
     read_checkpoint,
     save_checkpoint,
 )
 
-__all__ = ["DepthModel", "DepthModelConfig", "disp_to_depth", "load_checkpoint", "read_checkpoint",
-           "save_checkpoint"]
+__all__ = ["DepthModel", "DepthModelConfig", "disp_to_depth", "load_checkpoint", "model_from_checkpoint",
+           "read_checkpoint", "save_checkpoint"]

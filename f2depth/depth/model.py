@@ -248,7 +248,14 @@ def load_checkpoint(path: str | os.PathLike, map_location: str | torch.device = 
     (``nyuv2_eval_depth.py`` in P²Net's code) builds the decoder with bilinear upsampling while its
     training uses nearest. None: as trained.
     """
-    ckpt = read_checkpoint(path)
+    return model_from_checkpoint(read_checkpoint(path), path, map_location, decoder_upsample)
+
+
+def model_from_checkpoint(ckpt: dict[str, Any], path: str | os.PathLike,
+                          map_location: str | torch.device = "cpu", decoder_upsample: str | None = None
+                          ) -> DepthModel:
+    """:func:`load_checkpoint` of a dict :func:`read_checkpoint` gave (``path`` names the file in errors), for
+    a caller that also reads the checkpoint's ``params`` without loading the file twice."""
     config = _checkpoint_config(path, ckpt["config"])
     if decoder_upsample is not None:
         config = dataclasses.replace(config, upsample_mode=decoder_upsample)
