@@ -28,6 +28,7 @@ from f2depth.ingest.camera_files import (
 )
 from f2depth.ingest.run import IngestConfig, collect_inputs, ingest
 from f2depth.ingest.select import FrameFilter, median_motion
+from f2depth.ingest.selfcal import best_focal, focal_costs
 from f2depth.poses.estimate import PosesConfig, estimate_scene
 
 HW = (240, 320)
@@ -201,6 +202,41 @@ def test_nyu_raw_folders_keep_the_nyu_camera(tmp_path):
     assert raw_camera(tmp_path) is NYU_RAW_CAMERA
 
 
+def test_the_focal_length_is_where_the_essential_matrices_have_two_equal_singular_values():
+    """Mendonça–Cipolla on exact fundamental matrices of a known camera: the cost is 0 at the true f only."""
+    rng = np.random.default_rng(0)
+    f_true, hw = 300.0, (240, 320)
+    K = np.array([[f_true, 0, 159.5], [0, f_true, 119.5], [0, 0, 1]])
+    Fs = []
+    for _ in range(10):
+        R = cv2.Rodrigues(rng.normal(size=3) * 0.05)[0]
+        t = rng.normal(size=3)
+        tx = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]])
+        F = np.linalg.inv(K).T @ tx @ R @ np.linalg.inv(K)
+        Fs.append(F / np.linalg.norm(F))
+    Fs = np.stack(Fs)
+    grid = np.geomspace(100, 900, 301)
+    costs = focal_costs(grid, Fs, hw, trim=0.0)
+    assert costs.min() < 1e-3 and costs[0] > 0.1 and costs[-1] > 0.1
+    assert best_focal(grid, Fs, hw)[0] == pytest.approx(f_true, rel=2e-3)
+
+
+def test_without_a_camera_the_video_calibrates_itself(clip, tmp_path, capsys):
+    """Issue 23: no camera file, no --fov, no EXIF → the focal length from the clip itself, within 5 % of
+    the truth (fx 250 px, the principal point 1.8 px off centre and the lens distortion not modelled)."""
+    root = clip[0]
+    rc = cli_main(["ingest", str(root / "living room.avi"), "--out", str(tmp_path / "v"),
+                   "--params", str(REPO / "params.yaml"), "--no-progress"])
+    assert rc == 0
+    summary = json.loads((tmp_path / "v" / "ingest.json").read_text())
+    est = summary["self_calibration"]
+    assert est["fx"] == pytest.approx(K_TRUE[0, 0], rel=0.05)
+    assert est["pairs"] >= 12 and est["spread"] < 0.08 and est["reprojection_px"] < 1.0
+    cam = json.loads((tmp_path / "v" / "camera.json").read_text())
+    assert cam["K"][0][0] == pytest.approx(est["fx"]) and cam["K"][0][2] == 159.5 and not any(cam["dist"])
+    assert "self-calibrated from the video" in capsys.readouterr().out
+
+
 def test_cli_ingest_with_fov_and_a_flag_override(clip, tmp_path, capsys):
     root = clip[0]
     rc = cli_main(["ingest", str(root / "living room.avi"), "--out", str(tmp_path / "v"), "--fov", "65",
@@ -232,7 +268,8 @@ def test_bad_inputs_are_one_line_errors_and_write_nothing(tmp_path):
     frames.mkdir()
     for k in range(3):
         cv2.imwrite(str(frames / f"{k}.png"), render(np.eye(4), K_TRUE, HW, seed=k))
-    with pytest.raises(DataError, match="unknown intrinsics"):
+    with pytest.raises(DataError, match=r"frames: unknown intrinsics and self-calibration failed: 0 frame "
+                                        r"pairs .*; give --fov DEG"):
         ingest([frames], tmp_path / "out", CONFIG, progress=False)
     assert not (tmp_path / "out").exists()
     rc = cli_main(["ingest", str(still), "--out", str(tmp_path / "out"), "--camera", str(camera),

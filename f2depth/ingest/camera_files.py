@@ -2,8 +2,9 @@
 
 :func:`choose_camera` applies the order of docs/ingest.md: a camera file (our JSON/YAML, COLMAP's
 ``cameras.txt`` or an OpenCV calibration YAML) → ``fov`` (horizontal field of view in degrees) → the EXIF
-``FocalLengthIn35mmFilm`` of the first image → a :class:`~f2depth.data.errors.DataError` asking for one of
-the first two. Every camera is at a stated resolution and must be the frames' (a camera file calibrated at
+``FocalLengthIn35mmFilm`` of the first image → the caller's ``fallback`` (ingest: self-calibration from the
+video, :mod:`f2depth.ingest.selfcal`) → a :class:`~f2depth.data.errors.DataError` asking for one of the first
+two. Every camera is at a stated resolution and must be the frames' (a camera file calibrated at
 another size is refused, not rescaled: a crop on the way would make a rescaled K silently wrong).
 
 Distortion is OpenCV's (k1, k2, p1, p2, k3), the model of ``cv2.undistort`` and of NYU's calibration.
@@ -14,6 +15,7 @@ from __future__ import annotations
 import json
 import math
 import os
+from collections.abc import Callable
 from pathlib import Path
 
 import cv2
@@ -169,9 +171,9 @@ def check_resolution(camera: RawCamera, hw: tuple[int, int], where: str | os.Pat
 
 
 def choose_camera(hw: tuple[int, int], first_file: Path, camera_file: str | os.PathLike | None = None,
-                  fov: float | None = None) -> RawCamera:
+                  fov: float | None = None, fallback: Callable[[], RawCamera] | None = None) -> RawCamera:
     """The intrinsics of frames of size ``hw`` (module docstring): camera file, ``fov``, EXIF of
-    ``first_file`` (the first image of a folder; videos carry none), else DataError."""
+    ``first_file`` (the first image of a folder; videos carry none), ``fallback()``, else DataError."""
     if camera_file is not None:
         camera = read_camera_file(camera_file)
         check_resolution(camera, hw, first_file)
@@ -181,5 +183,7 @@ def choose_camera(hw: tuple[int, int], first_file: Path, camera_file: str | os.P
     camera = from_exif(first_file, hw)
     if camera is not None:
         return camera
+    if fallback is not None:
+        return fallback()
     raise DataError(first_file, "unknown intrinsics: no camera file, no --fov and no EXIF 35 mm focal length",
                     "give --camera FILE (docs/ingest.md) or --fov DEG (a phone's main camera: about 65–75)")

@@ -4,7 +4,8 @@ Every input is one scene: a video (any frame rate; OpenCV applies its rotation m
 images (sorted by name). Frames are streamed, never held together: sampled every ``frame_step``-th (a
 video with ``rate``: every round(fps / rate)-th), filtered (:class:`f2depth.ingest.select.FrameFilter`:
 static camera, optional blur), undistorted with the camera (:mod:`f2depth.ingest.camera_files`: camera
-file → ``fov`` → EXIF), shrunk to at most ``max_side`` px on the long side and written as
+file → ``fov`` → EXIF → self-calibration from the inputs themselves, :mod:`f2depth.ingest.selfcal`, a
+first pass over them), shrunk to at most ``max_side`` px on the long side and written as
 ``<out>/<scene>/r-<seconds>-<index>.png``. ``<out>/camera.json`` holds the intrinsics of those frames
 (no distortion left; :func:`f2depth.data.nyu_raw.raw_camera` reads it), ``<out>/scenes.txt`` the scenes
 (``prepare.train_scenes_file``), ``<out>/ingest.json`` what was kept and dropped per scene. The folder is
@@ -35,6 +36,7 @@ from f2depth.inference.sources import (
 )
 from f2depth.ingest.camera_files import choose_camera
 from f2depth.ingest.select import FrameFilter
+from f2depth.ingest.selfcal import FocalEstimate, estimate_focal
 from f2depth.io import atomic_dir, write_json, write_rgb, write_text
 
 MIN_KEPT = 3  # a scene gives a frame tuple (target, prev, next) from three kept frames
@@ -118,6 +120,18 @@ def ingest(inputs: Sequence[str | os.PathLike], out_dir: str | os.PathLike, conf
     camera: RawCamera | None = None
     written: RawCamera | None = None
     report: dict[str, dict] = {}
+    estimated: list[FocalEstimate] = []
+
+    def frames(item: _Input) -> Iterator[np.ndarray]:
+        source = open_source(item.path)
+        for frame in tqdm(source, total=len(source) or None, desc=f"self-calibrate {item.scene}",
+                          unit="frame", disable=not progress, leave=False):
+            yield frame.rgb
+
+    def self_calibrate() -> RawCamera:  # no camera file, --fov or EXIF: a first pass over every input
+        estimated.append(estimate_focal((frames(item) for item in scenes), scenes[0].path))
+        return estimated[0].camera()
+
     with atomic_dir(out) as tmp:
         for item in scenes:
             source = open_source(item.path)
@@ -137,7 +151,7 @@ def ingest(inputs: Sequence[str | os.PathLike], out_dir: str | os.PathLike, conf
                     hw = frame.rgb.shape[:2]
                     if camera is None:
                         first = Path(frame.origin.split("#")[0])
-                        camera = choose_camera(hw, first, camera_file, fov)
+                        camera = choose_camera(hw, first, camera_file, fov, self_calibrate)
                         written = working_camera(camera, config.max_side)
                     if hw != tuple(camera.hw):
                         raise DataError(Path(frame.origin), f"a {hw[1]}×{hw[0]} frame, but the camera "
@@ -162,6 +176,7 @@ def ingest(inputs: Sequence[str | os.PathLike], out_dir: str | os.PathLike, conf
         write_json(tmp / CAMERA_FILE, written.to_json())
         write_text(tmp / "scenes.txt", "".join(f"{s}\n" for s in report))
         summary = {"scenes": report, "camera": written.to_json(), "input_camera": camera.to_json(),
+                   "self_calibration": estimated[0].to_json() if estimated else None,
                    "settings": asdict(config)}
         write_json(tmp / "ingest.json", summary)  # no timings: the same inputs give the same bytes
     return {**summary, "seconds": round(time.perf_counter() - start, 2)}

@@ -1,0 +1,216 @@
+"""The focal length of a video from the video itself, when no camera file, ``--fov`` or EXIF gives it.
+
+Mendonça & Cipolla's self-calibration (CVPR 1999, "A simple technique for self-calibration"): for the right
+intrinsics K, the essential matrix ``E = Kᵀ F K`` of every frame pair has two equal singular values. With
+square pixels and the principal point at the image centre (what a phone's video nearly always has; the
+camera file is the way to give anything else) only the focal length f is unknown, and it is the f that
+minimises ``Σ (σ₁ − σ₂) / σ₂`` over the pairs (the worst ``TRIM`` share of pairs left out).
+
+* **Pairs**: every frame ``k`` with the frames ``k − g`` for ``g`` in ``GAPS``, on a grey copy at most
+  ``ANALYSIS_SIDE`` px on its long side; corners (``cv2.goodFeaturesToTrack``) tracked with pyramidal
+  Lucas–Kanade, kept where the backward track returns within ``FB_TOLERANCE`` px; a pair counts when the
+  median track moved ``MIN_SHARE`` of the diagonal (no baseline, no geometry) and MAGSAC++
+  (``cv2.USAC_MAGSAC``) finds F with ``MIN_INLIERS`` inliers. At most ``MAX_PAIRS`` pairs are used, so a
+  long video costs what a short one does; frames are streamed, never held (``max(GAPS)`` grey copies).
+* **Search**: f on a geometric grid over horizontal fields of view ``FOV_RANGE``, then the grid's best
+  refined by a parabola through its neighbours.
+* **Confidence**: the 16–84 % range of the estimate over ``BOOTSTRAP`` resamplings of the pairs, as a
+  share of f (``spread``), and the median two-view reprojection error (px at the frames' size) of the F
+  inliers triangulated with that f (``cv2.recoverPose``). An estimate from fewer than ``MIN_PAIRS`` pairs,
+  with a spread above ``MAX_SPREAD``, or at an end of the search range is refused with one line asking for
+  ``--fov`` or a camera file.
+
+Lens distortion is not estimated (a wide lens biases f; measured on the embedded NYU-lens clips:
+docs/ingest.md), which is why a camera file, ``--fov`` and EXIF all come first.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from collections.abc import Iterable
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from f2depth.camera import RawCamera
+from f2depth.data.errors import DataError
+from f2depth.inference.outputs import intrinsics
+
+ANALYSIS_SIDE = 640
+GAPS = (2, 4, 6)
+MIN_SHARE = 0.015
+MIN_INLIERS = 30
+MIN_PAIRS = 12
+MAX_PAIRS = 300
+MAX_CORNERS = 800
+FB_TOLERANCE = 0.5
+RANSAC_PX = 0.5
+TRIM = 0.2
+FOV_RANGE = (20.0, 120.0)
+GRID = 300
+BOOTSTRAP = 100
+MAX_SPREAD = 0.08
+_LK = {"winSize": (21, 21), "maxLevel": 3,
+       "criteria": (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01)}
+
+
+@dataclass(frozen=True)
+class PairGeometry:
+    """One frame pair at the analysis size: F (3,3) and its inlier tracks ``a``, ``b`` (n,2) px, x first."""
+
+    F: np.ndarray
+    a: np.ndarray
+    b: np.ndarray
+
+
+@dataclass(frozen=True)
+class FocalEstimate:
+    """The self-calibrated focal length ``fx`` (px at the frames' size ``hw``) and how sure it is."""
+
+    fx: float
+    hw: tuple[int, int]
+    pairs: int
+    spread: float             # 16–84 % bootstrap range ÷ fx
+    reprojection_px: float    # median two-view reprojection error of the inliers at the frames' size
+    fov_deg: float
+
+    def camera(self) -> RawCamera:
+        h, w = self.hw
+        source = (f"self-calibrated from the video (Mendonça–Cipolla, {self.pairs} pairs): fx {self.fx:.1f} "
+                  f"px (horizontal FOV {self.fov_deg:.1f}°), ±{100 * self.spread / 2:.1f} %, reprojection "
+                  f"{self.reprojection_px:.2f} px")
+        return RawCamera(intrinsics(h, w, fx=self.fx), np.zeros(5), (h, w), source)
+
+    def to_json(self) -> dict:
+        return {"fx": self.fx, "pairs": self.pairs, "spread": self.spread,
+                "reprojection_px": self.reprojection_px, "fov_deg": self.fov_deg}
+
+
+def analysis_grey(rgb: np.ndarray) -> tuple[np.ndarray, float]:
+    """RGB uint8 → (grey uint8 at most ``ANALYSIS_SIDE`` px on its long side, the scale to it)."""
+    grey = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
+    scale = min(1.0, ANALYSIS_SIDE / max(grey.shape))
+    if scale < 1:
+        size = (max(round(grey.shape[1] * scale), 1), max(round(grey.shape[0] * scale), 1))
+        grey = cv2.resize(grey, size, interpolation=cv2.INTER_AREA)
+    return grey, scale
+
+
+def pair_geometry(ref: np.ndarray, cur: np.ndarray) -> PairGeometry | None:
+    """F between grey frames ``ref`` and ``cur`` (module docstring), or None without enough motion/tracks."""
+    pts = cv2.goodFeaturesToTrack(ref, MAX_CORNERS, qualityLevel=0.01, minDistance=8, blockSize=7)
+    if pts is None or len(pts) < MIN_INLIERS:
+        return None
+    fwd, st1, _ = cv2.calcOpticalFlowPyrLK(ref, cur, pts, None, **_LK)
+    back, st2, _ = cv2.calcOpticalFlowPyrLK(cur, ref, fwd, None, **_LK)
+    good = ((st1.ravel() == 1) & (st2.ravel() == 1)
+            & (np.linalg.norm((back - pts).reshape(-1, 2), axis=1) < FB_TOLERANCE))
+    a, b = pts.reshape(-1, 2)[good], fwd.reshape(-1, 2)[good]
+    if len(a) < MIN_INLIERS or np.median(np.linalg.norm(b - a, axis=1)) < MIN_SHARE * math.hypot(*ref.shape):
+        return None
+    F, mask = cv2.findFundamentalMat(a, b, cv2.USAC_MAGSAC, RANSAC_PX, 0.999)
+    if F is None or F.shape != (3, 3) or mask is None:
+        return None
+    inl = mask.ravel() == 1
+    return PairGeometry(F, a[inl], b[inl]) if inl.sum() >= MIN_INLIERS else None
+
+
+def collect_pairs(scenes: Iterable[Iterable[np.ndarray]]
+                  ) -> tuple[list[PairGeometry], tuple[int, int], float]:
+    """The pairs of every scene's RGB frames (streamed) → (pairs, frame size (h, w), analysis scale)."""
+    pairs: list[PairGeometry] = []
+    hw, scale = (0, 0), 1.0
+    for frames in scenes:
+        window: deque[np.ndarray] = deque(maxlen=max(GAPS))
+        for rgb in frames:
+            hw = tuple(rgb.shape[:2])
+            grey, scale = analysis_grey(rgb)
+            for gap in GAPS:
+                if len(window) >= gap and len(pairs) < MAX_PAIRS:
+                    found = pair_geometry(window[-gap], grey)
+                    if found is not None:
+                        pairs.append(found)
+            window.append(grey)
+            if len(pairs) >= MAX_PAIRS:
+                return pairs, hw, scale
+    return pairs, hw, scale
+
+
+def focal_costs(focals: np.ndarray, Fs: np.ndarray, hw: tuple[int, int], trim: float = TRIM) -> np.ndarray:
+    """Mendonça–Cipolla's cost of each focal length ``focals`` (m,) px for fundamental matrices ``Fs``
+    (n,3,3) at size ``hw``: the mean of ``(σ₁ − σ₂)/σ₂`` of ``Kᵀ F K`` over the best ``1 − trim`` of the
+    pairs → (m,)."""
+    h, w = hw
+    K = np.zeros((len(focals), 3, 3))
+    K[:, 0, 0] = K[:, 1, 1] = focals
+    K[:, 0, 2], K[:, 1, 2], K[:, 2, 2] = (w - 1) / 2, (h - 1) / 2, 1.0
+    E = np.einsum("mji,njk,mkl->mnil", K, Fs, K)
+    s = np.linalg.svd(E, compute_uv=False)                               # (m,n,3), descending
+    c = np.sort((s[..., 0] - s[..., 1]) / np.maximum(s[..., 1], 1e-12), axis=1)
+    keep = max(int(round(c.shape[1] * (1 - trim))), 1)
+    return c[:, :keep].mean(axis=1)
+
+
+def best_focal(grid: np.ndarray, Fs: np.ndarray, hw: tuple[int, int]) -> tuple[float, int]:
+    """The minimum of :func:`focal_costs` over ``grid`` refined by a parabola in log f → (f, grid index)."""
+    c = focal_costs(grid, Fs, hw)
+    i = int(np.argmin(c))
+    if 0 < i < len(grid) - 1:
+        x = np.log(grid[i - 1:i + 2])
+        denom = c[i - 1] - 2 * c[i] + c[i + 1]
+        if denom > 0:
+            step = 0.5 * (c[i - 1] - c[i + 1]) / denom
+            return float(np.exp(x[1] + step * (x[2] - x[1]))), i
+    return float(grid[i]), i
+
+
+def reprojection_error(pairs: list[PairGeometry], f: float, hw: tuple[int, int]) -> float:
+    """Median reprojection error (px at ``hw``, the analysis size) of the pairs' inliers triangulated from
+    ``E = Kᵀ F K`` with focal length ``f``."""
+    h, w = hw
+    K = intrinsics(h, w, fx=f)
+    errors = []
+    for p in pairs:
+        _, R, t, mask = cv2.recoverPose(K.T @ p.F @ K, p.a, p.b, K)
+        inl = mask.ravel() > 0
+        if inl.sum() < 8:
+            continue
+        P1, P2 = K @ np.eye(3, 4), K @ np.hstack([R, t])
+        X = cv2.triangulatePoints(P1, P2, p.a[inl].T.astype(np.float64), p.b[inl].T.astype(np.float64))
+        for P, x in ((P1, p.a[inl]), (P2, p.b[inl])):
+            proj = P @ X
+            errors.append(np.linalg.norm(proj[:2] / proj[2] - x.T, axis=0))
+    return float(np.median(np.concatenate(errors))) if errors else math.inf
+
+
+def estimate_focal(scenes: Iterable[Iterable[np.ndarray]], where: str | Path,
+                   seed: int = 0) -> FocalEstimate:
+    """Self-calibrate the focal length from the scenes' RGB frames (module docstring); ``where`` names the
+    input in the one-line DataError of a refused estimate."""
+    pairs, hw, scale = collect_pairs(scenes)
+    fix = "give --fov DEG (a phone's main camera: about 65–75) or --camera FILE (docs/ingest.md)"
+    if len(pairs) < MIN_PAIRS:
+        raise DataError(Path(where), f"unknown intrinsics and self-calibration failed: {len(pairs)} frame "
+                        f"pairs with enough motion and matches (at least {MIN_PAIRS} needed)", fix)
+    ah = (round(hw[0] * scale), round(hw[1] * scale))
+    lo, hi = (ah[1] / 2 / math.tan(math.radians(fov) / 2) for fov in (FOV_RANGE[1], FOV_RANGE[0]))
+    grid = np.geomspace(lo, hi, GRID)
+    Fs = np.stack([p.F for p in pairs])
+    f, index = best_focal(grid, Fs, ah)
+    if index in (0, GRID - 1):
+        raise DataError(Path(where), f"unknown intrinsics and self-calibration failed: the best focal length "
+                        f"is at the end of the {FOV_RANGE[0]:g}–{FOV_RANGE[1]:g}° range searched", fix)
+    rng = np.random.default_rng(seed)
+    boot = [best_focal(grid, Fs[rng.integers(0, len(pairs), len(pairs))], ah)[0] for _ in range(BOOTSTRAP)]
+    low, high = np.percentile(boot, [16, 84])
+    spread = float((high - low) / f)
+    if spread > MAX_SPREAD:
+        raise DataError(Path(where), f"unknown intrinsics and self-calibration is unsure: fx {f / scale:.0f} "
+                        f"px with a 16–84 % range of {100 * spread:.0f} % over {len(pairs)} pairs (at most "
+                        f"{100 * MAX_SPREAD:.0f} %)", fix)
+    reproj = reprojection_error(pairs, f, ah) / scale
+    fov = math.degrees(2 * math.atan(ah[1] / 2 / f))
+    return FocalEstimate(f / scale, hw, len(pairs), spread, reproj, fov)
