@@ -22,7 +22,8 @@ and mirrors the numbers to an MLflow child run `evaluate@NAME`.
 import argparse
 import sys
 import time
-from dataclasses import dataclass, field
+import warnings
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Literal
 
@@ -55,9 +56,32 @@ def config_from_params(p: dict) -> tuple[SuiteConfig, EvaluateStage]:
     return P.section(p, "evaluate", SuiteConfig, EvaluateStage, device=P.device(p), progress=True)
 
 
+class _Absent(Exception):
+    """A test set's data path is null or names nothing."""
+
+
 def load_sets(p: dict, names: tuple[str, ...], most: int | None) -> dict:
-    """The test sets named in `evaluate.datasets`, cut to `evaluate.max_images` each when set."""
-    return {name: limit(registry.protocol(name).open(lambda key: P.get(p, key)), most) for name in names}
+    """The test sets named in `evaluate.datasets`, cut to `evaluate.max_images` each when set. A set whose
+    data path (a ``data.*`` key it reads) is null or names nothing is skipped with one warning line (your
+    own video without NYU, 7-Scenes or Campus copies); none left is a ParamsError."""
+    def get(key: str):
+        value = P.get(p, key)
+        if key.startswith("data.") and (value is None or not Path(value).exists()):
+            raise _Absent(key, value)
+        return value
+
+    sets = {}
+    for name in names:
+        try:
+            sets[name] = limit(registry.protocol(name).open(get), most)
+        except _Absent as absent:
+            key, value = absent.args
+            warnings.warn(f"evaluate: skipping test set {name}: {key} is {value!r}, which does not exist "
+                          f"(set it to your copy, or drop {name} from evaluate.datasets)", stacklevel=1)
+    if not sets:
+        raise P.ParamsError(f"{p['_file']}: none of evaluate.datasets {list(names)} has its data: set "
+                            "data.nyu_labeled, data.sevenscenes or data.campus to a copy")
+    return sets
 
 
 def main(argv: list[str]) -> None:
@@ -87,6 +111,7 @@ def main(argv: list[str]) -> None:
         models.append(model_from_checkpoint(ckpt, f, cfg.device, cfg.decoder_upsample).eval())
         trained = ckpt["params"] if trained is None else trained
     sets = load_sets(p, cfg.datasets, stage.max_images)
+    cfg = replace(cfg, datasets=tuple(sets))  # the sets present (absent ones were skipped with a line)
     out_dir = Path(args.reports) / args.variant
     t0 = time.perf_counter()
     headlines, details, rows, kept = [], {}, {}, None

@@ -24,6 +24,7 @@ from f2depth.data.errors import DataError
 from f2depth.depth import DepthModel, DepthModelConfig, save_checkpoint
 from f2depth.eval.metrics import METRIC_NAMES
 from f2depth.eval.suite import GROUPS
+from f2depth.params import ParamsError
 
 ROOT = Path(__file__).resolve().parents[1]
 NET_HW = (64, 96)
@@ -159,6 +160,28 @@ def test_decoder_upsample_is_applied_and_recorded_with_the_training_weights(tree
     params["evaluate"]["decoder_upsample"] = "cubic"
     (tree / "params.yaml").write_text(yaml.safe_dump(params))
     with pytest.raises(ValueError, match="evaluate.decoder_upsample is 'cubic'"):
+        run(tree)
+
+
+def test_absent_test_sets_are_skipped_with_one_line_and_the_rest_scored(tree):
+    """Issue 23 item 4: your own video without Campus or 7-Scenes copies still evaluates on what is set."""
+    for seed in (0, 1):
+        write_model(tree / "models" / "depth_full" / f"seed{seed}.pt", seed)
+    params = yaml.safe_load((tree / "params.yaml").read_text())
+    params["data"]["campus"] = None
+    params["data"]["sevenscenes"] = str(tree / "no_such_folder")
+    (tree / "params.yaml").write_text(yaml.safe_dump(params))
+    with pytest.warns(UserWarning) as seen:
+        doc = run(tree)
+    lines = [str(w.message) for w in seen if "skipping" in str(w.message)]
+    assert len(lines) == 2 and all("\n" not in line for line in lines)
+    assert "skipping test set sevenscenes: data.sevenscenes is" in lines[0] and "no_such_folder" in lines[0]
+    assert "skipping test set campus: data.campus is None" in lines[1]
+    assert {"nyu", "nyu_pp"} <= set(doc) and not {"campus", "sevenscenes"} & set(doc)
+    assert doc["nyu"]["abs_rel"] > 0
+    params["data"]["nyu_labeled"] = None
+    (tree / "params.yaml").write_text(yaml.safe_dump(params))
+    with pytest.warns(UserWarning), pytest.raises(ParamsError, match="none of evaluate.datasets"):
         run(tree)
 
 
