@@ -194,3 +194,43 @@ def test_junk_checkpoint_files_give_a_clear_error(tmp_path, content):
     path.write_bytes(content)
     with pytest.raises(ValueError, match="junk.pt: not a readable torch checkpoint"):
         read_checkpoint(path)
+
+
+def test_the_inference_copy_folds_batchnorm_and_predicts_the_same_depth():
+    """Issue 26 item 3: BatchNorm folded into the convolutions (f2depth.depth.fused) gives the training
+    graph's depth to 1e-5 relative, on BatchNorm statistics far from the identity; the model is untouched."""
+    from torch import nn
+
+    from f2depth.depth.fused import fold_batchnorm, inference_copy
+
+    torch.manual_seed(0)
+    model = DepthModel(DepthModelConfig(height=64, width=96)).eval()
+    g = torch.Generator().manual_seed(1)
+    with torch.no_grad():
+        for m in model.modules():
+            if isinstance(m, nn.BatchNorm2d):
+                m.running_mean.copy_(torch.rand(m.num_features, generator=g) - 0.5)
+                m.running_var.copy_(0.3 + 2 * torch.rand(m.num_features, generator=g))
+                m.weight.copy_(0.5 + torch.rand(m.num_features, generator=g))
+                m.bias.copy_(0.4 * torch.rand(m.num_features, generator=g) - 0.2)
+    fused = inference_copy(model)
+    assert not any(isinstance(m, nn.BatchNorm2d) for m in fused.depth_encoder.modules())
+    assert sum(isinstance(m, nn.BatchNorm2d) for m in model.depth_encoder.modules()) == 20  # untouched
+    x = torch.rand(2, 3, 64, 96, generator=g)
+    with torch.inference_mode():
+        ref = model.predict_depth(x)
+        got = fused.to(memory_format=torch.channels_last).predict_depth(
+            x.contiguous(memory_format=torch.channels_last))
+        pose_ref = model.predict_pose(x, x.flip(-1), False)
+        pose_got = fused.predict_pose(x, x.flip(-1), False)
+    rel = ((got - ref).abs() / ref.abs()).max()
+    assert rel < 1e-5 and ref.std() / ref.mean() > 0.005  # a varying depth map, not a constant
+    assert torch.allclose(pose_got, pose_ref, rtol=1e-4, atol=1e-6)
+    conv, bn = nn.Conv2d(3, 4, 3, padding=1, bias=True).double(), nn.BatchNorm2d(4).double().eval()
+    with torch.no_grad():
+        bn.running_mean.copy_(torch.tensor([0.1, -0.2, 0.3, 0.0]))
+        bn.running_var.copy_(torch.tensor([0.5, 2.0, 1.0, 0.1]))
+        bn.weight.copy_(torch.tensor([1.5, 0.5, -1.0, 2.0]))
+        bn.bias.copy_(torch.tensor([0.0, 0.1, -0.1, 0.3]))
+        u = torch.randn(1, 3, 8, 8, dtype=torch.float64, generator=g)
+        assert torch.allclose(fold_batchnorm(conv, bn)(u), bn(conv(u)), atol=1e-12)

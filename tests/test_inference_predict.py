@@ -160,3 +160,17 @@ def test_bad_checkpoints(ckpt, tmp_path, content, message):
     with pytest.raises(DataError, match=message) as info:
         TorchBackend.from_checkpoint(path)
     assert str(info.value).startswith(str(path)) and len(str(info.value)) <= 300
+
+
+def test_the_torch_backend_runs_the_inference_copy_with_the_trained_depth(ckpt, backend):
+    """predict's PyTorch path (BatchNorm folded, channels-last) = the checkpoint's training graph."""
+    from f2depth.inference.backends import load_depth_model
+
+    model = load_depth_model(ckpt)
+    x = torch.rand(2, 3, *backend.input_hw, generator=torch.Generator().manual_seed(3))
+    with torch.inference_mode():
+        ref = model.predict_depth(x)
+    got = backend.depth(x)
+    assert got.is_contiguous() and got.shape == ref.shape
+    assert float(((got - ref).abs() / ref.abs()).max()) < 1e-5
+    assert not any(isinstance(m, torch.nn.BatchNorm2d) for m in backend.model.depth_encoder.modules())

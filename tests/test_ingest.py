@@ -4,6 +4,7 @@ poses, with its known K and lens distortion."""
 from __future__ import annotations
 
 import json
+import struct
 from pathlib import Path
 
 import cv2
@@ -305,3 +306,57 @@ def test_a_frame_of_another_size_is_named(tmp_path):
     with pytest.raises(DataError, match=r"2\.png: a 200×100 frame, but the camera \(--fov 60°\) is 320×240"):
         ingest([folder], tmp_path / "out", CONFIG, fov=60.0, progress=False)
     assert not (tmp_path / "out").exists()
+
+
+def _rotated_mp4(path: Path, frames: list[np.ndarray]) -> Path:
+    """An MP4 of grey ``frames`` whose track header says "display rotated by 90°", as a phone held upright
+    writes it (the tkhd matrix [0 1; −1 0]; ISO/IEC 14496-12 §8.3.2)."""
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), 30.0, (HW[1], HW[0]))
+    assert writer.isOpened()
+    for grey in frames:
+        writer.write(cv2.cvtColor(grey, cv2.COLOR_GRAY2BGR))
+    writer.release()
+    data = bytearray(path.read_bytes())
+    at = data.find(b"tkhd") + 4 + 40  # version 0: flags, times, track id, duration, layer, volume
+    assert struct.unpack(">9i", data[at:at + 36])[0] == 0x10000  # the identity matrix before
+    data[at:at + 36] = struct.pack(">9i", 0, 0x10000, 0, -0x10000, 0, 0, 0, 0, 0x40000000)
+    path.write_bytes(bytes(data))
+    return path
+
+
+def test_a_rotated_phone_video_is_ingested_upright(clip, tmp_path):
+    """Issue 23: the rotation metadata of a phone video is honoured (OpenCV turns the frames), recorded in
+    ingest.json, and a camera file must be at the turned resolution."""
+    ideal = clip[3]
+    video = _rotated_mp4(tmp_path / "upright.mp4", ideal)
+    summary = ingest([video], tmp_path / "out", CONFIG, fov=60.0, progress=False)
+    report = summary["scenes"]["upright"]
+    assert report["rotation_deg"] == 90.0 and report["rotation_applied"] and report["kept"] >= 6
+    assert summary["camera"]["height"] == HW[1] and summary["camera"]["width"] == HW[0]  # portrait
+    frame = list_frames(tmp_path / "out", "upright")[1]
+    index = int(frame.path.stem.split("-")[-1])
+    got = cv2.cvtColor(cv2.imread(str(frame.path)), cv2.COLOR_BGR2GRAY).astype(np.float64)
+    turned = np.rot90(ideal[index], k=-1).astype(np.float64)  # 90° clockwise, as the matrix says
+    assert got.shape == turned.shape and np.abs(got - turned).mean() < 4.0  # mp4v's loss only
+    assert np.abs(got - np.rot90(ideal[index], k=1)).mean() > 4 * np.abs(got - turned).mean()
+    with pytest.raises(DataError, match=r"upright\.mp4: frames are 240×320 but the camera .* is 320×240"):
+        ingest([video], tmp_path / "out2", CONFIG, camera_file=_camera_json(tmp_path / "c.json"),
+               progress=False)
+
+
+def test_a_rotation_the_decoder_does_not_apply_is_said(clip, tmp_path, monkeypatch):
+    """Where OpenCV's backend does not turn the frames, ingest says so in one warning line."""
+    from f2depth.inference import sources
+
+    video = _rotated_mp4(tmp_path / "sideways.mp4", clip[3])
+    plain_init = sources.VideoSource.__init__
+
+    def without_auto_rotation(self, path):
+        plain_init(self, path)
+        self.rotation_applied = False
+
+    monkeypatch.setattr(sources.VideoSource, "__init__", without_auto_rotation)
+    with pytest.warns(UserWarning, match=r"sideways\.mp4 says it is rotated by 90° but this OpenCV does not "
+                                         r"turn its frames"):
+        summary = ingest([video], tmp_path / "out", CONFIG, fov=60.0, progress=False)
+    assert summary["scenes"]["sideways"]["rotation_applied"] is False

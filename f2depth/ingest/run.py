@@ -17,6 +17,7 @@ from __future__ import annotations
 import os
 import re
 import time
+import warnings
 from collections.abc import Iterator, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -136,6 +137,10 @@ def ingest(inputs: Sequence[str | os.PathLike], out_dir: str | os.PathLike, conf
         for item in scenes:
             source = open_source(item.path)
             video = source.kind == "video"
+            if video and source.rotation_deg and not source.rotation_applied:
+                warnings.warn(f"ingest: {item.path} says it is rotated by {source.rotation_deg:g}° but this "
+                              "OpenCV does not turn its frames: they are ingested as stored (sideways); "
+                              "turn the video first (e.g. ffmpeg -i in.mp4 out.mp4)", stacklevel=2)
             fps = source.fps if video else 0.0
             step = max(round(fps / config.rate), 1) if config.rate and fps else config.frame_step
             keep = FrameFilter(config.min_motion, config.min_sharpness)
