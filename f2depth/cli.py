@@ -190,7 +190,9 @@ def build_parser() -> argparse.ArgumentParser:
     cam = p.add_mutually_exclusive_group()
     cam.add_argument("--camera", type=Path, metavar="FILE",
                      help="intrinsics: our JSON/YAML, COLMAP cameras.txt or an OpenCV calibration YAML")
-    cam.add_argument("--fov", type=_positive_float, metavar="DEG", help="horizontal field of view, degrees")
+    cam.add_argument("--fov", type=_positive_float, metavar="DEG",
+                     help="horizontal field of view, degrees (neither, and no EXIF: the focal length is "
+                          "self-calibrated from the video)")
     p.add_argument("--params", type=Path, default=Path("params.yaml"), metavar="FILE",
                    help="parameter file with the ingest section (default params.yaml)")
     p.add_argument("--frame-step", type=_positive_int, metavar="N", help="every N-th frame is a candidate")
