@@ -28,10 +28,10 @@ _LK = {"winSize": (21, 21), "maxLevel": 3,
        "criteria": (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01)}
 
 
-def analysis_grey(rgb: np.ndarray) -> np.ndarray:
-    """RGB uint8 (H, W, 3) → grey uint8 at most ``ANALYSIS_SIDE`` px on its long side (INTER_AREA)."""
+def analysis_grey(rgb: np.ndarray, side: int = ANALYSIS_SIDE) -> np.ndarray:
+    """RGB uint8 (H, W, 3) → grey uint8 at most ``side`` px on its long side (INTER_AREA)."""
     grey = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
-    scale = ANALYSIS_SIDE / max(grey.shape)
+    scale = side / max(grey.shape)
     if scale < 1:
         size = (max(round(grey.shape[1] * scale), 1), max(round(grey.shape[0] * scale), 1))
         grey = cv2.resize(grey, size, interpolation=cv2.INTER_AREA)
@@ -43,19 +43,32 @@ def sharpness(grey: np.ndarray) -> float:
     return float(cv2.Laplacian(grey, cv2.CV_64F).var())
 
 
-def median_motion(ref: np.ndarray, cur: np.ndarray) -> float | None:
-    """Median displacement (px) of corners of grey ``ref`` tracked into grey ``cur`` (same size), over the
-    tracks that pass the forward–backward check; None with fewer than ``MIN_TRACKS`` of them."""
-    pts = cv2.goodFeaturesToTrack(ref, MAX_CORNERS, qualityLevel=0.01, minDistance=7, blockSize=7)
-    if pts is None or len(pts) < MIN_TRACKS:
+def tracked_corners(ref: np.ndarray, cur: np.ndarray, max_corners: int = MAX_CORNERS, min_distance: int = 7,
+                    fb_tolerance: float = FB_TOLERANCE, min_tracks: int = MIN_TRACKS
+                    ) -> tuple[np.ndarray, np.ndarray] | None:
+    """Corners of grey ``ref`` (``cv2.goodFeaturesToTrack``) tracked into grey ``cur`` (same size) with
+    pyramidal Lucas–Kanade, kept where the backward track returns within ``fb_tolerance`` px → their
+    positions ``(a, b)`` (n,2) px, x first, in ``ref`` and ``cur``; None with fewer than ``min_tracks``."""
+    pts = cv2.goodFeaturesToTrack(ref, max_corners, qualityLevel=0.01, minDistance=min_distance, blockSize=7)
+    if pts is None or len(pts) < min_tracks:
         return None
     fwd, st1, _ = cv2.calcOpticalFlowPyrLK(ref, cur, pts, None, **_LK)
     back, st2, _ = cv2.calcOpticalFlowPyrLK(cur, ref, fwd, None, **_LK)
     good = (st1.ravel() == 1) & (st2.ravel() == 1) & (np.linalg.norm((back - pts).reshape(-1, 2), axis=1)
-                                                      < FB_TOLERANCE)
-    if good.sum() < MIN_TRACKS:
+                                                      < fb_tolerance)
+    if good.sum() < min_tracks:
         return None
-    return float(np.median(np.linalg.norm((fwd - pts).reshape(-1, 2)[good], axis=1)))
+    return pts.reshape(-1, 2)[good], fwd.reshape(-1, 2)[good]
+
+
+def median_motion(ref: np.ndarray, cur: np.ndarray) -> float | None:
+    """Median displacement (px) of corners of grey ``ref`` tracked into grey ``cur`` (same size), over the
+    tracks that pass the forward–backward check; None with fewer than ``MIN_TRACKS`` of them."""
+    tracks = tracked_corners(ref, cur)
+    if tracks is None:
+        return None
+    a, b = tracks
+    return float(np.median(np.linalg.norm(b - a, axis=1)))
 
 
 @dataclass

@@ -7,8 +7,9 @@ camera file is the way to give anything else) only the focal length f is unknown
 minimises ``Σ (σ₁ − σ₂) / σ₂`` over the pairs (the worst ``TRIM`` share of pairs left out).
 
 * **Pairs**: every frame ``k`` with the frames ``k − g`` for ``g`` in ``GAPS``, on a grey copy at most
-  ``ANALYSIS_SIDE`` px on its long side; corners (``cv2.goodFeaturesToTrack``) tracked with pyramidal
-  Lucas–Kanade, kept where the backward track returns within ``FB_TOLERANCE`` px; a pair counts when the
+  ``ANALYSIS_SIDE`` px on its long side; corners tracked as the static-camera filter tracks them
+  (:func:`f2depth.ingest.select.tracked_corners`; here up to ``MAX_CORNERS``, kept where the backward track
+  returns within ``FB_TOLERANCE`` px); a pair counts when the
   median track moved ``MIN_SHARE`` of the diagonal (no baseline, no geometry) and MAGSAC++
   (``cv2.USAC_MAGSAC``) finds F with ``MIN_INLIERS`` inliers. At most ``MAX_PAIRS`` pairs are used, so a
   long video costs what a short one does; frames are streamed, never held (``max(GAPS)`` grey copies).
@@ -38,6 +39,7 @@ import numpy as np
 from f2depth.camera import RawCamera
 from f2depth.data.errors import DataError
 from f2depth.inference.outputs import intrinsics
+from f2depth.ingest.select import analysis_grey, tracked_corners
 
 ANALYSIS_SIDE = 640
 GAPS = (2, 4, 6)
@@ -53,8 +55,6 @@ FOV_RANGE = (20.0, 120.0)
 GRID = 300
 BOOTSTRAP = 100
 MAX_SPREAD = 0.08
-_LK = {"winSize": (21, 21), "maxLevel": 3,
-       "criteria": (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01)}
 
 
 @dataclass(frozen=True)
@@ -89,27 +89,14 @@ class FocalEstimate:
                 "reprojection_px": self.reprojection_px, "fov_deg": self.fov_deg}
 
 
-def analysis_grey(rgb: np.ndarray) -> tuple[np.ndarray, float]:
-    """RGB uint8 → (grey uint8 at most ``ANALYSIS_SIDE`` px on its long side, the scale to it)."""
-    grey = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
-    scale = min(1.0, ANALYSIS_SIDE / max(grey.shape))
-    if scale < 1:
-        size = (max(round(grey.shape[1] * scale), 1), max(round(grey.shape[0] * scale), 1))
-        grey = cv2.resize(grey, size, interpolation=cv2.INTER_AREA)
-    return grey, scale
-
-
 def pair_geometry(ref: np.ndarray, cur: np.ndarray) -> PairGeometry | None:
     """F between grey frames ``ref`` and ``cur`` (module docstring), or None without enough motion/tracks."""
-    pts = cv2.goodFeaturesToTrack(ref, MAX_CORNERS, qualityLevel=0.01, minDistance=8, blockSize=7)
-    if pts is None or len(pts) < MIN_INLIERS:
+    tracks = tracked_corners(ref, cur, MAX_CORNERS, min_distance=8, fb_tolerance=FB_TOLERANCE,
+                             min_tracks=MIN_INLIERS)
+    if tracks is None:
         return None
-    fwd, st1, _ = cv2.calcOpticalFlowPyrLK(ref, cur, pts, None, **_LK)
-    back, st2, _ = cv2.calcOpticalFlowPyrLK(cur, ref, fwd, None, **_LK)
-    good = ((st1.ravel() == 1) & (st2.ravel() == 1)
-            & (np.linalg.norm((back - pts).reshape(-1, 2), axis=1) < FB_TOLERANCE))
-    a, b = pts.reshape(-1, 2)[good], fwd.reshape(-1, 2)[good]
-    if len(a) < MIN_INLIERS or np.median(np.linalg.norm(b - a, axis=1)) < MIN_SHARE * math.hypot(*ref.shape):
+    a, b = tracks
+    if np.median(np.linalg.norm(b - a, axis=1)) < MIN_SHARE * math.hypot(*ref.shape):
         return None
     F, mask = cv2.findFundamentalMat(a, b, cv2.USAC_MAGSAC, RANSAC_PX, 0.999)
     if F is None or F.shape != (3, 3) or mask is None:
@@ -127,7 +114,8 @@ def collect_pairs(scenes: Iterable[Iterable[np.ndarray]]
         window: deque[np.ndarray] = deque(maxlen=max(GAPS))
         for rgb in frames:
             hw = tuple(rgb.shape[:2])
-            grey, scale = analysis_grey(rgb)
+            grey = analysis_grey(rgb, ANALYSIS_SIDE)
+            scale = min(1.0, ANALYSIS_SIDE / max(hw))
             for gap in GAPS:
                 if len(window) >= gap and len(pairs) < MAX_PAIRS:
                     found = pair_geometry(window[-gap], grey)
