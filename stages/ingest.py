@@ -51,6 +51,8 @@ def main(argv: list[str]) -> None:
                "blur": sum(s["blur"] for s in scenes.values()),
                "camera": summary["camera"], "input_camera": summary["input_camera"],
                "per_scene": scenes, "seconds": summary["seconds"]}
+    if summary["self_calibration"] is not None:  # data.video_camera null and no EXIF: fx from the clips
+        metrics["self_calibration"] = summary["self_calibration"]
     write_json(METRICS, metrics)
     tracking.mirror_stage("ingest", p, {k: metrics[k] for k in ("scenes", "sampled", "kept", "static", "blur",
                                                                "seconds")})

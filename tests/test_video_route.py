@@ -15,6 +15,7 @@ import pytest
 import yaml
 
 from f2depth.camera import NYU_RAW_CAMERA
+from f2depth.data.errors import DataError
 from f2depth.data.nyu_raw import list_frames, read_frame
 from f2depth.data.training_video import training_video
 from f2depth.ingest.camera_files import read_camera_file
@@ -115,6 +116,21 @@ def test_the_ingest_stage_drops_the_static_stretch_and_keeps_the_camera(world, t
         assert len(kept) == row["kept"] >= 3
         assert kept[0] == 0 and kept[1] > CLIPS.static_frames  # clip frames 0..static are one raw frame
     assert (tmp_path / "ingested" / "scenes.txt").read_text().split() == sorted(metrics["per_scene"])
+
+
+def test_without_a_camera_file_too_short_clips_ask_for_one_and_write_nothing(world, tmp_path, monkeypatch):
+    """data.video_camera null: the stage self-calibrates (tests/test_ingest.py shows it on a longer clip);
+    on clips with too little motion for it, one line asks for a camera file or --fov, nothing written."""
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("F2DEPTH_MLFLOW", "0")
+    params = _params(tmp_path, world)
+    data = yaml.safe_load(params.read_text())
+    data["data"]["video_camera"] = None
+    params.write_text(yaml.safe_dump(data))
+    with pytest.raises(DataError, match=r"clips/\w+\.mp4: unknown intrinsics and self-calibration failed: "
+                                        r"\d+ frame pairs .*; give --fov DEG"):
+        _stage("ingest").main(["ingest.py", str(params)])
+    assert not (tmp_path / "ingested").exists() and not (tmp_path / "metrics" / "ingest.json").exists()
 
 
 def test_without_clips_the_nyu_route_ingests_nothing_and_the_video_route_stops(world, tmp_path, monkeypatch,
