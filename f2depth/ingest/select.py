@@ -43,13 +43,20 @@ def sharpness(grey: np.ndarray) -> float:
     return float(cv2.Laplacian(grey, cv2.CV_64F).var())
 
 
-def tracked_corners(ref: np.ndarray, cur: np.ndarray, max_corners: int = MAX_CORNERS, min_distance: int = 7,
+def corners(grey: np.ndarray, max_corners: int = MAX_CORNERS, min_distance: int = 7) -> np.ndarray | None:
+    """Shi–Tomasi corners of a grey image (``cv2.goodFeaturesToTrack``): (n,1,2) float32, or None."""
+    return cv2.goodFeaturesToTrack(grey, max_corners, qualityLevel=0.01, minDistance=min_distance,
+                                   blockSize=7)
+
+
+def tracked_corners(ref: np.ndarray, cur: np.ndarray, pts: np.ndarray | None = None,
                     fb_tolerance: float = FB_TOLERANCE, min_tracks: int = MIN_TRACKS
                     ) -> tuple[np.ndarray, np.ndarray] | None:
-    """Corners of grey ``ref`` (``cv2.goodFeaturesToTrack``) tracked into grey ``cur`` (same size) with
-    pyramidal Lucas–Kanade, kept where the backward track returns within ``fb_tolerance`` px → their
+    """Corners ``pts`` of grey ``ref`` (default :func:`corners` of it) tracked into grey ``cur`` (same size)
+    with pyramidal Lucas–Kanade, kept where the backward track returns within ``fb_tolerance`` px → their
     positions ``(a, b)`` (n,2) px, x first, in ``ref`` and ``cur``; None with fewer than ``min_tracks``."""
-    pts = cv2.goodFeaturesToTrack(ref, max_corners, qualityLevel=0.01, minDistance=min_distance, blockSize=7)
+    if pts is None:
+        pts = corners(ref)
     if pts is None or len(pts) < min_tracks:
         return None
     fwd, st1, _ = cv2.calcOpticalFlowPyrLK(ref, cur, pts, None, **_LK)

@@ -39,7 +39,7 @@ import numpy as np
 from f2depth.camera import RawCamera
 from f2depth.data.errors import DataError
 from f2depth.inference.outputs import intrinsics
-from f2depth.ingest.select import analysis_grey, tracked_corners
+from f2depth.ingest.select import analysis_grey, corners, tracked_corners
 
 ANALYSIS_SIDE = 640
 GAPS = (2, 4, 6)
@@ -89,10 +89,19 @@ class FocalEstimate:
                 "reprojection_px": self.reprojection_px, "fov_deg": self.fov_deg}
 
 
-def pair_geometry(ref: np.ndarray, cur: np.ndarray) -> PairGeometry | None:
-    """F between grey frames ``ref`` and ``cur`` (module docstring), or None without enough motion/tracks."""
-    tracks = tracked_corners(ref, cur, MAX_CORNERS, min_distance=8, fb_tolerance=FB_TOLERANCE,
-                             min_tracks=MIN_INLIERS)
+def frame_corners(grey: np.ndarray) -> np.ndarray | None:
+    """The corners of a frame that later frames are tracked from (each frame's found once)."""
+    return corners(grey, MAX_CORNERS, min_distance=8)
+
+
+def pair_geometry(ref: np.ndarray, cur: np.ndarray, ref_corners: np.ndarray | None = None
+                  ) -> PairGeometry | None:
+    """F between grey frames ``ref`` (with its :func:`frame_corners`, found when not given) and ``cur``
+    (module docstring), or None without enough motion/tracks."""
+    pts = frame_corners(ref) if ref_corners is None else ref_corners
+    if pts is None:
+        return None
+    tracks = tracked_corners(ref, cur, pts, fb_tolerance=FB_TOLERANCE, min_tracks=MIN_INLIERS)
     if tracks is None:
         return None
     a, b = tracks
@@ -111,17 +120,18 @@ def collect_pairs(scenes: Iterable[Iterable[np.ndarray]]
     pairs: list[PairGeometry] = []
     hw, scale = (0, 0), 1.0
     for frames in scenes:
-        window: deque[np.ndarray] = deque(maxlen=max(GAPS))
+        window: deque[tuple[np.ndarray, np.ndarray | None]] = deque(maxlen=max(GAPS))  # (grey, corners)
         for rgb in frames:
             hw = tuple(rgb.shape[:2])
             grey = analysis_grey(rgb, ANALYSIS_SIDE)
             scale = min(1.0, ANALYSIS_SIDE / max(hw))
             for gap in GAPS:
                 if len(window) >= gap and len(pairs) < MAX_PAIRS:
-                    found = pair_geometry(window[-gap], grey)
+                    ref, ref_corners = window[-gap]
+                    found = pair_geometry(ref, grey, ref_corners)
                     if found is not None:
                         pairs.append(found)
-            window.append(grey)
+            window.append((grey, frame_corners(grey)))
             if len(pairs) >= MAX_PAIRS:
                 return pairs, hw, scale
     return pairs, hw, scale
