@@ -189,11 +189,15 @@ def evaluate_gt_pairs(model: FlowNetwork, pairs: Iterable[GTPair], device: str =
     was_training = model.training
     model.eval()
     acc, zero, n = EPEAccumulator(), EPEAccumulator(), 0
-    for i, g in enumerate(pairs):
+    for n, g in enumerate(pairs, start=1):
         pred = score_pair(model, acc, zero, g.img1, g.img2, g.flow, g.occluded, g.low_texture, g.valid,
                           device)
         if on_pair is not None:
-            on_pair(i, g, pred)
-        n += 1
+            on_pair(n - 1, g, pred)
     model.train(was_training)
-    return {"pairs": n, "model": acc.result(), "zero_flow": zero.result()}
+    return flow_scores(acc, zero, n)
+
+
+def flow_scores(acc: EPEAccumulator, zero: EPEAccumulator, pairs: int) -> dict:
+    """The one result layout of every flow scorer: ``{"pairs", "model", "zero_flow"}``."""
+    return {"pairs": pairs, "model": acc.result(), "zero_flow": zero.result()}

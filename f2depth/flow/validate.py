@@ -25,14 +25,11 @@ from f2depth.flow.evaluation import (
     EPEAccumulator,
     endpoint_error,
     evaluate_gt_pairs,
+    flow_scores,
     low_texture_mask,
     score_pair,
 )
 from f2depth.flow.network import FlowNetwork
-
-
-def _result(acc: EPEAccumulator, zero: EPEAccumulator, pairs: int) -> dict:
-    return {"pairs": pairs, "model": acc.result(), "zero_flow": zero.result()}
 
 
 def evaluate_sintel(model: FlowNetwork, pairs: Sequence[SintelPair], size: tuple[int, int] | None,
@@ -56,7 +53,7 @@ def evaluate_sintel(model: FlowNetwork, pairs: Sequence[SintelPair], size: tuple
         if figure_dir is not None and i in chosen:
             save_figure(Path(figure_dir) / f"{pair.sequence}_{pair.pass_name}_{pair.frame:04d}.png",
                         d["image1"], gt, pred)
-    return _result(acc, zero, len(pairs))
+    return flow_scores(acc, zero, len(pairs))
 
 
 def evaluate_generated(model: FlowNetwork, pairs: Sequence[torch.Tensor], device: str = "cpu",
@@ -69,11 +66,11 @@ def evaluate_generated(model: FlowNetwork, pairs: Sequence[torch.Tensor], device
     for i in range(len(img1)):
         a, b = img1[i:i + 1], img2[i:i + 1]
         pred = score_pair(model, acc, zero, a, b, flow[i:i + 1], occluded[i:i + 1], low_texture_mask(a), None,
-                      device)
+                          device)
         if figure_dir is not None and i in chosen:
             rgb = (a[0].permute(1, 2, 0) * 255).round().to(torch.uint8).numpy()
             save_figure(Path(figure_dir) / f"generated_{i:03d}.png", rgb, flow[i:i + 1], pred)
-    return _result(acc, zero, len(img1))
+    return flow_scores(acc, zero, len(img1))
 
 
 def evaluate_prepared(model: FlowNetwork, prepared_root: str | os.PathLike, max_pairs: int | None = None,
