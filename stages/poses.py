@@ -41,7 +41,8 @@ def main(argv: list[str]) -> None:
     scenes = estimate_scenes(training_video(p).root, scene_names, config, prepared.source_camera)
     priors = tuple_priors(prepared, scenes, config)
     out = P.get(p, "data.poses")
-    write_poses(out, scenes, priors, {t.tuple_id: t.scene for t in prepared.tuples}, config)
+    write_poses(out, scenes, priors, {t.tuple_id: t.scene for t in prepared.tuples + prepared.val_tuples},
+                config)
     metrics = {"median_depth": config.median_depth, "min_registered_share": config.min_registered_share,
                "min_scene_points": config.min_scene_points, "min_shared_points": config.min_shared_points,
                **prior_metrics(prepared, scenes, priors), "seconds": round(time.perf_counter() - t0, 2)}

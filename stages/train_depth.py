@@ -9,9 +9,10 @@ metrics/train_depth/NAME.json and metrics/train_depth/NAME/history.csv. The mode
 replaces the old one only when every seed is trained; the resume states (train_depth.resume_dir) are
 removed only after every output is written, so a killed run — or one whose metrics could not be written —
 resumes from its last epoch checkpoint unless --no-resume is given. Every output location is checked to
-be writable before any work. With ground truth in the prepared set (the
-synthetic default) every epoch also logs depth accuracy and pose errors on the training tuples
-(f2depth.train.diagnostics).
+be writable before any work. Validation: NYU's labeled test set (data.nyu_labeled; null: none) and the
+prepared set's held-out tuples (prepare.val_share; f2depth.train.heldout), whichever there are. With ground
+truth in the prepared set (the synthetic default) every epoch also logs depth accuracy and pose errors on the
+training tuples (f2depth.train.diagnostics).
 """
 
 from __future__ import annotations
@@ -73,14 +74,21 @@ def main(argv: list[str]) -> None:
         cleanup(ctx)
     if ctx.is_main:
         m = result.metrics
-        floor = m["val_constant_depth"]["a1"]
         tr0, tr1 = m["train_untrained"].get("train_a1"), m["train_trained"].get("train_a1")
-        print(f"train_depth[{args.variant}]: val δ1 {m['val_untrained']['a1']:.3f} untrained → "
-              f"{m['val_trained']['a1']:.3f} trained (constant depth: {fmt(floor)}), AbsRel "
-              f"{m['val_untrained']['abs_rel']:.3f} → {m['val_trained']['abs_rel']:.3f}; training frames δ1 "
-              f"{fmt(tr0)} → {fmt(tr1)}; {m['seconds_per_epoch']:.1f} s/epoch, "
+        parts = []
+        if m["val_trained"]["a1"] is not None:
+            parts.append(f"val δ1 {m['val_untrained']['a1']:.3f} untrained → {m['val_trained']['a1']:.3f} "
+                         f"trained (constant depth: {fmt(m['val_constant_depth']['a1'])}), AbsRel "
+                         f"{m['val_untrained']['abs_rel']:.3f} → {m['val_trained']['abs_rel']:.3f}")
+        if "heldout" in m:
+            h0, h1, floors = m["heldout_untrained"], m["heldout_trained"], m["heldout"]
+            parts.append(f"held-out L_ph {h0['ph']:.4f} → {h1['ph']:.4f} (still camera: "
+                         f"{floors['identity_ph']:.4f}, {floors['tuples']} tuples)"
+                         + (f", held-out δ1 {h0['a1']:.3f} → {h1['a1']:.3f} (constant depth: "
+                            f"{floors['constant_a1']:.3f})" if "a1" in h1 else ""))
+        parts.append(f"training frames δ1 {fmt(tr0)} → {fmt(tr1)}")
+        print(f"train_depth[{args.variant}]: {'; '.join(parts)}; {m['seconds_per_epoch']:.1f} s/epoch, "
               f"{m['wall_seconds']:.0f} s ({len(settings.seeds)} seed(s)) → {out_dir}")
-
 
 if __name__ == "__main__":
     run_stage("train_depth", main, sys.argv)

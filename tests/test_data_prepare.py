@@ -17,6 +17,7 @@ from f2depth.data.prepare import (
     SuperpixelParams,
     crop_and_resize,
     crop_border,
+    held_out_count,
     prepare,
     prepare_image,
     read_scene_list,
@@ -198,3 +199,50 @@ def test_full_resolution_crop_is_the_image_prepare_resizes():
     assert undistort_crop(raw, 0).shape == (480, 640, 3)
     with pytest.raises(ValueError, match="crop 240 leaves nothing"):
         crop_border(raw, 240)
+
+
+def test_held_out_count_keeps_three_frames_and_a_training_tuple():
+    assert [held_out_count(n, 0.0) for n in (3, 10, 100)] == [0, 0, 0]
+    assert [held_out_count(n, 0.2) for n in (5, 6, 10, 20, 21)] == [0, 3, 3, 4, 5]
+    assert held_out_count(10, 0.5) == 5
+
+
+def test_val_share_holds_out_the_end_of_each_scene(world, tmp_path):
+    lst = tmp_path / "train.txt"
+    lst.write_text("office_0002\nbedroom_0076a\n")  # 7 and 4 frames at frame_step 1
+    with pytest.warns(UserWarning, match=r"val_share 0.2: 1 scene\(s\) are too short .*bedroom_0076a"):
+        m = prepare(world["raw"], world["mat"], world["splits"], world["out"], _config(frame_step=1,
+                    val_share=0.2), synth_gt=world["gt"], train_scenes_file=lst, progress=False)
+    ds = PreparedSet(world["out"])
+    office = [f.frame_id for f in ds.frames if f.scene == "office_0002"]
+    assert len(office) == 7
+    # office: frames 0-3 train (tuples at 1, 2), frames 4-6 are held out (one tuple at 5)
+    assert [(t.prev, t.target, t.next) for t in ds.val_tuples] == [tuple(office[4:7])]
+    assert [t.target for t in ds.tuples if t.scene == "office_0002"] == office[1:3]
+    assert len([t for t in ds.tuples if t.scene == "bedroom_0076a"]) == 2  # too short: all of it trains
+    held = set(office[4:])
+    used = {f for t in ds.tuples for f in (t.prev, t.target, t.next)} | {f for p in ds.pairs
+                                                                          for f in (p.frame1, p.frame2)}
+    assert not held & used  # no training tuple or fine-tuning pair sees a held-out frame
+    assert (m["val_tuples"], m["held_out_frames"], m["tuples"]) == (1, 3, 4)
+    assert ds.segments(ds.val_tuples[0].tuple_id).shape == HW and ds.has_gt(office[5])
+
+    # a held-out tuple that shares a frame with a training tuple is refused in one line
+    rows = (world["out"] / "val_tuples.csv").read_text().splitlines()
+    t = ds.tuples[0]
+    rows.append(f"x,{t.scene},{t.target},{t.prev},{t.next},{t.segments}")
+    (world["out"] / "val_tuples.csv").write_text("\n".join(rows) + "\n")
+    with pytest.raises(DataError, match=r"val_tuples.csv: held-out tuple x: frame .* is in a training tuple"):
+        PreparedSet(world["out"])
+
+
+def test_without_val_share_the_tables_are_those_of_a_set_without_held_out_frames(world):
+    prepare(world["raw"], world["mat"], world["splits"], world["out"], _config(frame_step=1),
+            synth_gt=world["gt"], progress=False)
+    ds = PreparedSet(world["out"])
+    assert ds.val_tuples == [] and (world["out"] / "val_tuples.csv").read_text().startswith("tuple_id,")
+    per_scene = {s: sum(f.scene == s for f in ds.frames) for s in {f.scene for f in ds.frames}}
+    assert len(ds.tuples) == sum(n - 2 for n in per_scene.values())
+    assert len(ds.pairs) == sum(n - 1 for n in per_scene.values())
+    (world["out"] / "val_tuples.csv").unlink()  # a set made before the file existed still loads
+    assert PreparedSet(world["out"]).val_tuples == []

@@ -1,8 +1,9 @@
 """End to end on a video the project makes (issue 23): `train_source: video` in the tiny DVC repository of
 test_e2e_pipeline. synth writes its NYU-raw scenes as MP4 clips (a static stretch first, NYU's lens, the
 camera file beside them), the `ingest` stage drops the static frames and undistorts with the camera file,
-prepare / keypoints / poses / train_depth run on the ingested frames, and `f2depth predict` runs the
-trained model on a clip. Marked ``e2e``."""
+prepare / keypoints / poses / train_depth run on the ingested frames (the last frames of each clip held out
+and scored against the room's ground truth), and `f2depth predict` runs the trained model on a clip.
+Marked ``e2e``."""
 
 from __future__ import annotations
 
@@ -17,7 +18,8 @@ from f2depth.camera import NYU_RAW_CAMERA
 
 @pytest.mark.e2e
 def test_the_video_route_trains_on_the_ingested_clips_and_predicts_on_a_clip(tmp_path):
-    repo, params, env = tiny_repo(tmp_path, {"train_source": "video", "prepare.frame_step": 1})
+    repo, params, env = tiny_repo(tmp_path, {"train_source": "video", "prepare.frame_step": 1,
+                                             "prepare.val_share": 0.3})
     run([str(BIN / "dvc"), "repro", "train_depth@baseline"], repo, env, timeout=900)
 
     ingest = json.loads((repo / "metrics" / "ingest.json").read_text())
@@ -34,8 +36,16 @@ def test_the_video_route_trains_on_the_ingested_clips_and_predicts_on_a_clip(tmp
     poses = json.loads((repo / "metrics" / "poses.json").read_text())
     assert poses["frames"] == ingest["kept"]  # tracked over every ingested frame (too few here to register:
     # the default-size clips register 100 %, docs/experiments/2026-12-04-video-route.md)
+    # the clips were ingested with the camera they were rendered with: synth's clip index finds each frame's
+    # ground truth, so the room's own held-out frames are scored (f2depth.train.heldout)
+    assert all(row.split(",")[4] for row in frames)
+    prepare = json.loads((repo / "metrics" / "prepare.json").read_text())
+    assert prepare["val_tuples"] >= 1 and prepare["held_out_frames"] >= 3
     train = json.loads((repo / "metrics" / "train_depth" / "baseline.json").read_text())
     assert train["train_tuples"] >= 2
+    assert train["heldout"]["tuples"] == prepare["val_tuples"]
+    assert 0 <= train["heldout_trained"]["a1"] <= 1 and train["heldout_trained"]["ph"] > 0
+    assert train["heldout"]["identity_ph"] > 0 and train["heldout"]["constant_a1"] is not None
 
     scene = sorted(ingest["per_scene"])[0]
     out = run([str(BIN / "f2depth"), "predict", "--model", "models/depth_baseline/model.pt", "--input",

@@ -10,6 +10,11 @@ computed on the prepared image as P²Net does (float image in [0, 1]; the colour
 Euclidean, so RGB and P²Net's BGR give the same labels). Synthetic side-car ground truth, when
 present, is cropped like the image and resized with exact nearest-neighbour sampling.
 
+With ``val_share`` > 0 the last ``val_share`` of each training scene's sampled frames (at least 3) are held
+out: their tuples go to ``val_tuples.csv`` (the photometric validation of ``train_depth``, for scenes without
+ground-truth depth), and no training tuple or pair uses them. The held-out stretch is contiguous and at the
+end, as a later part of the same video, so neighbouring frames leak as little as a single video allows.
+
 Training scenes are the raw scenes whose room is not among the rooms of the labeled test images
 (``testNdxs``), or those listed in an explicit file. Rooms are compared without the trailing letter
 of split recordings (``bedroom_0076a`` and ``bedroom_0076b`` are the same room).
@@ -20,6 +25,7 @@ is written atomically, so an interrupted run leaves the previous set untouched.
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import time
@@ -36,7 +42,7 @@ from f2depth.data.errors import DataError
 from f2depth.data.images import INTERPOLATIONS, resize_rgb
 from f2depth.data.nyu_labeled import scenes_of_test_images
 from f2depth.data.nyu_raw import RawFrame, list_frames, list_scenes, raw_camera, read_frame
-from f2depth.data.prepared import FRAMES_HEADER, PAIRS_HEADER, TUPLES_HEADER
+from f2depth.data.prepared import FRAMES_HEADER, PAIRS_HEADER, TUPLES_HEADER, VAL_TUPLES
 from f2depth.io import atomic_dir, csv_text, imwrite, save_npz, write_json, write_rgb, write_text
 from f2depth.superpixels import MIN_AREA, scaled_min_area
 from f2depth.workers import map_jobs
@@ -66,6 +72,7 @@ class PrepareConfig:
     superpixels: SuperpixelParams = field(default_factory=SuperpixelParams)
     workers: int = field(default=2, metadata={"min": 0})
     interpolation: str = "lanczos"  # the shrinking filter of the images (f2depth.data.images.INTERPOLATIONS)
+    val_share: float = field(default=0.0, metadata={"min": 0, "max": 0.5})  # held-out end of each scene
 
     def __post_init__(self) -> None:
         if self.interpolation not in INTERPOLATIONS:
@@ -203,30 +210,68 @@ def select_train_scenes(raw_scenes: Sequence[str], test_scenes: set[str]) -> lis
     return [s for s in raw_scenes if room_of(s) not in test_rooms]
 
 
+#: A held-out stretch needs three frames to hold one tuple.
+MIN_HELD_OUT = 3
+
+
+def held_out_count(n: int, share: float) -> int:
+    """How many of a scene's ``n`` sampled frames (its last ones) are held out for validation: 0 for
+    ``share`` 0, else ``ceil(share·n)`` but at least :data:`MIN_HELD_OUT`; 0 when the frames left would
+    not hold a training tuple (three frames)."""
+    if share <= 0:
+        return 0
+    k = max(MIN_HELD_OUT, int(np.ceil(share * n - 1e-9)))
+    return k if n - k >= 3 else 0
+
+
 @dataclass(frozen=True)
 class FrameTask:
     frame_id: str
     raw: RawFrame
     gt_src: Path | None
     target: bool  # a tuple's target: gets superpixels
+    held_out: bool = False  # in the scene's validation stretch (val_tuples.csv), in no training tuple or pair
 
 
 def frame_id(frame: RawFrame) -> str:
     return f"{frame.scene}_{frame.index:05d}"
 
 
-def plan_scene(raw_root: Path, scene: str, step: int, synth_gt: Path | None) -> list[FrameTask]:
-    """The sampled frames of a scene; the first and last are sources only."""
+def clip_stems(synth_gt: Path) -> dict[str, list[str]]:
+    """Scene → the raw frame stem of every frame of its embedded clip (``synth_gt/manifest.json`` ``clips``;
+    empty without one): an ingested clip's frame ``r-<seconds>-<n>`` shows raw frame ``stems[n]``."""
+    try:
+        clips = json.loads((synth_gt / "manifest.json").read_text()).get("clips", {})
+    except (OSError, ValueError):
+        return {}
+    return clips if isinstance(clips, dict) else {}
+
+
+def plan_scene(raw_root: Path, scene: str, step: int, synth_gt: Path | None,
+               val_share: float = 0.0, stems: list[str] | None = None) -> list[FrameTask]:
+    """The sampled frames of a scene, the held-out stretch (:func:`held_out_count`) last; the first and
+    last frame of the training and of the held-out stretch are sources only. Ground truth: the side-car
+    file of each frame's stem, or with ``stems`` (an ingested clip, :func:`clip_stems`) of ``stems[n]``."""
     sampled = list_frames(raw_root, scene)[::step]
+    n_train = len(sampled) - held_out_count(len(sampled), val_share)
     gt_dir = synth_gt / "nyu_raw" / scene if synth_gt is not None else None
     has_gt = gt_dir is not None and gt_dir.is_dir()
+
+    def stem(f: RawFrame) -> str | None:
+        if stems is None:
+            return f.stem
+        return stems[f.counter] if 0 <= f.counter < len(stems) else None
+
     tasks = []
     for k, f in enumerate(sampled):
-        gt = gt_dir / f"{f.stem}.npz" if has_gt else None
+        name = stem(f) if has_gt else None
+        gt = gt_dir / f"{name}.npz" if name is not None else None
         if gt is not None and not gt.is_file():
             raise DataError(gt, "missing side-car ground truth (its scene has some)",
                             "re-run `dvc repro synth`")
-        tasks.append(FrameTask(frame_id(f), f, gt, 0 < k < len(sampled) - 1))
+        held_out = k >= n_train
+        first, last = (n_train, len(sampled) - 1) if held_out else (0, n_train - 1)
+        tasks.append(FrameTask(frame_id(f), f, gt, first < k < last, held_out))
     return tasks
 
 
@@ -273,18 +318,20 @@ def segments_rel(tuple_id: str) -> str:
 # ---- the stage --------------------------------------------------------------------------------------
 
 def _write_tables(out: Path, per_scene: dict[str, list[FrameTask]], config: PrepareConfig,
-                  camera: RawCamera) -> tuple[int, int]:
-    frames, tuples, pairs = [], [], []
+                  camera: RawCamera) -> tuple[int, int, int]:
+    frames, tuples, val_tuples, pairs = [], [], [], []
     for scene, tasks in per_scene.items():
         for k, t in enumerate(tasks):
             frames.append([t.frame_id, scene, f"{scene}/{t.raw.path.name}", image_rel(t), gt_rel(t)])
             if t.target:
-                tuples.append([t.frame_id, scene, t.frame_id, tasks[k - 1].frame_id, tasks[k + 1].frame_id,
-                               segments_rel(t.frame_id)])
-            if k + 1 < len(tasks):
+                (val_tuples if t.held_out else tuples).append(
+                    [t.frame_id, scene, t.frame_id, tasks[k - 1].frame_id, tasks[k + 1].frame_id,
+                     segments_rel(t.frame_id)])
+            if k + 1 < len(tasks) and not t.held_out and not tasks[k + 1].held_out:
                 pairs.append([t.frame_id, scene, t.frame_id, tasks[k + 1].frame_id])
     write_text(out / "frames.csv", csv_text(FRAMES_HEADER, frames))
     write_text(out / "tuples.csv", csv_text(TUPLES_HEADER, tuples))
+    write_text(out / VAL_TUPLES, csv_text(TUPLES_HEADER, val_tuples))
     write_text(out / "pairs.csv", csv_text(PAIRS_HEADER, pairs))
     K = crop_resize_intrinsics(camera.K, camera.hw, config.crop, config.hw, config.p2net_cxcy_bug)
     write_json(out / "camera.json", {
@@ -293,7 +340,7 @@ def _write_tables(out: Path, per_scene: dict[str, list[FrameTask]], config: Prep
         "source_width": camera.hw[1], "intrinsics_source": camera.source, "crop": config.crop,
         "frame_step": config.frame_step, "interpolation": config.interpolation,
     })
-    return len(tuples), len(pairs)
+    return len(tuples), len(val_tuples), len(pairs)
 
 
 def prepare(nyu_raw: str | os.PathLike, nyu_labeled: str | os.PathLike, nyu_splits: str | os.PathLike,
@@ -311,24 +358,39 @@ def prepare(nyu_raw: str | os.PathLike, nyu_labeled: str | os.PathLike, nyu_spli
         if not scenes:
             raise DataError(raw_root, f"all {len(raw_scenes)} raw scenes are rooms of labeled test images",
                             "add other scenes or set prepare.train_scenes_file")
-    # side-car ground truth belongs to the synthetic NYU raw frames; an ingested video (its own camera.json)
-    # has none there, even where its scene names match the synthetic ones
-    gt_root = Path(synth_gt) if synth_gt is not None and camera is NYU_RAW_CAMERA else None
-    per_scene = {s: plan_scene(raw_root, s, config.frame_step, gt_root) for s in scenes}
+    # side-car ground truth belongs to the synthetic NYU raw frames and, through the manifest's clip index,
+    # to the embedded clips ingested with their camera file (the camera they were rendered with); another
+    # video has none, even where its scene names match the synthetic ones
+    gt_root = Path(synth_gt) if synth_gt is not None else None
+    stems: dict[str, list[str]] | None = None
+    if gt_root is not None and camera is not NYU_RAW_CAMERA:
+        stems = clip_stems(gt_root)
+        if not (camera.hw == NYU_RAW_CAMERA.hw and np.allclose(camera.K, NYU_RAW_CAMERA.K, rtol=1e-6)):
+            stems = {}  # e.g. a self-calibrated K: the side-car depth would not align
+    per_scene = {s: plan_scene(raw_root, s, config.frame_step,
+                               gt_root if stems is None or s in stems else None, config.val_share,
+                               None if stems is None else stems.get(s)) for s in scenes}
     short = [s for s, tasks in per_scene.items() if len(tasks) < 3]
     if short:
         warnings.warn(f"{len(short)} scene(s) have fewer than 3 sampled frames and give no frame tuple: "
                       f"{', '.join(short[:5])}", stacklevel=2)
+    whole = [s for s, tasks in per_scene.items() if len(tasks) >= 3 and not any(t.held_out for t in tasks)]
+    if config.val_share > 0 and whole:
+        warnings.warn(f"prepare.val_share {config.val_share}: {len(whole)} scene(s) are too short to hold "
+                      f"out {MIN_HELD_OUT} frames and keep a training tuple, all their frames train: "
+                      f"{', '.join(whole[:5])}", stacklevel=2)
 
     with atomic_dir(out) as tmp:
         jobs = [_Job(t, tmp, config, camera) for tasks in per_scene.values() for t in tasks]
         results = [r for r in map_jobs(_run_job, jobs, config.workers, "prepare", progress) if r is not None]
-        n_tuples, n_pairs = _write_tables(tmp, per_scene, config, camera)
+        n_tuples, n_val, n_pairs = _write_tables(tmp, per_scene, config, camera)
     stats = np.array([r[1:] for r in results], dtype=np.float64).reshape(-1, 3)
     mean = stats.mean(axis=0) if len(stats) else np.zeros(3)
     return {"raw_scenes": len(raw_scenes), "scenes": len(scenes), "scenes_without_tuples": len(short),
             "frames": len(jobs), "frames_with_gt": sum(j.task.gt_src is not None for j in jobs),
-            "tuples": n_tuples, "pairs": n_pairs, "superpixels_per_target": float(mean[0]),
+            "tuples": n_tuples, "val_tuples": n_val,
+            "held_out_frames": sum(j.task.held_out for j in jobs), "pairs": n_pairs,
+            "superpixels_per_target": float(mean[0]),
             "superpixel_share_over_1000px": float(mean[1]), "superpixel_share_over_scaled_px": float(mean[2]),
             "superpixel_scaled_px": round(scaled_min_area(*config.hw), 1), "height": config.height,
             "width": config.width, "seconds": round(time.perf_counter() - start, 2)}

@@ -22,6 +22,8 @@ from f2depth.data.images import read_image, read_png16
 FRAMES_HEADER = ["frame_id", "scene", "raw_file", "image", "gt"]
 TUPLES_HEADER = ["tuple_id", "scene", "target", "prev", "next", "segments"]
 PAIRS_HEADER = ["pair_id", "scene", "frame1", "frame2"]
+#: The held-out tuples (``prepare.val_share``; format of tuples.csv). Sets made before it existed have none.
+VAL_TUPLES = "val_tuples.csv"
 _FIX = "re-run `dvc repro prepare`"
 
 
@@ -66,7 +68,8 @@ def _read_table(path: Path, header: list[str]) -> list[list[str]]:
 
 
 class PreparedSet:
-    """Frames, tuples and pairs of a prepared set, with loaders for images, GT, K and segments."""
+    """Frames, tuples, held-out tuples and pairs of a prepared set, with loaders for images, GT, K and
+    segments."""
 
     def __init__(self, root: str | os.PathLike):
         self.root = Path(root)
@@ -77,9 +80,13 @@ class PreparedSet:
         self.K = np.asarray(self.camera["K"], dtype=np.float64)
         self.frames = [FrameRecord(*r) for r in _read_table(self.root / "frames.csv", FRAMES_HEADER)]
         self.tuples = [TupleRecord(*r) for r in _read_table(self.root / "tuples.csv", TUPLES_HEADER)]
+        val = self.root / VAL_TUPLES
+        self.val_tuples = [TupleRecord(*r) for r in _read_table(val, TUPLES_HEADER)] if val.is_file() else []
         self.pairs = [PairRecord(*r) for r in _read_table(self.root / "pairs.csv", PAIRS_HEADER)]
         self._frame_index = self._index(self.frames, "frame_id", self.root / "frames.csv")
-        self._tuple_index = self._index(self.tuples, "tuple_id", self.root / "tuples.csv")
+        self._index(self.tuples, "tuple_id", self.root / "tuples.csv")
+        self._all_tuples = self.tuples + self.val_tuples
+        self._tuple_index = self._index(self._all_tuples, "tuple_id", self.root / VAL_TUPLES)
         self._check_references()
 
     @staticmethod
@@ -114,11 +121,17 @@ class PreparedSet:
                 if rel and not (self.root / rel).is_file():
                     raise DataError(self.root / rel, f"listed for frame {f.frame_id} in frames.csv, missing",
                                     _FIX)
-        for t in self.tuples:
-            for fid in (t.target, t.prev, t.next):
-                if fid not in self._frame_index:
-                    raise DataError(self.root / "tuples.csv", f"tuple {t.tuple_id}: unknown frame {fid!r}",
-                                    _FIX)
+        for table, rows in (("tuples.csv", self.tuples), (VAL_TUPLES, self.val_tuples)):
+            for t in rows:
+                for fid in (t.target, t.prev, t.next):
+                    if fid not in self._frame_index:
+                        raise DataError(self.root / table, f"tuple {t.tuple_id}: unknown frame {fid!r}", _FIX)
+        train_frames = {f for t in self.tuples for f in (t.target, t.prev, t.next)}
+        for t in self.val_tuples:
+            if shared := train_frames & {t.target, t.prev, t.next}:
+                raise DataError(self.root / VAL_TUPLES, f"held-out tuple {t.tuple_id}: frame {min(shared)} "
+                                "is in a training tuple", _FIX)
+        for t in self._all_tuples:
             if not (self.root / t.segments).is_file():
                 raise DataError(self.root / t.segments, f"segments of tuple {t.tuple_id} missing", _FIX)
         for p in self.pairs:
@@ -181,10 +194,12 @@ class PreparedSet:
         return self._frame_index[frame_id]
 
     def tuple(self, tuple_id: str) -> TupleRecord:
+        """A training or held-out tuple by id."""
         try:
-            return self.tuples[self._tuple_index[tuple_id]]
+            return self._all_tuples[self._tuple_index[tuple_id]]
         except KeyError:
-            raise KeyError(f"tuple {tuple_id!r} is not in {self.root / 'tuples.csv'}") from None
+            raise KeyError(f"tuple {tuple_id!r} is in neither tuples.csv nor {VAL_TUPLES} of "
+                           f"{self.root}") from None
 
     # ---- data -------------------------------------------------------------------------------------
     def image(self, frame_id: str) -> np.ndarray:

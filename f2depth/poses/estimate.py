@@ -128,9 +128,10 @@ def pair_prior(scene: ScenePoses, target: int, source: int, config: PosesConfig)
 
 def tuple_priors(prepared: PreparedSet, scenes: dict[str, ScenePoses],
                  config: PosesConfig) -> dict[str, tuple[PairPrior, PairPrior]]:
-    """{tuple_id: (prior of prev_T_target, prior of next_T_target)} for every tuple of ``prepared``."""
+    """{tuple_id: (prior of prev_T_target, prior of next_T_target)} for every tuple of ``prepared``, the
+    held-out ones (val_tuples.csv) after the training ones."""
     out = {}
-    for t in prepared.tuples:
+    for t in prepared.tuples + prepared.val_tuples:
         s = scenes[t.scene]
         idx = {f: s.index(prepared.frame(f).raw_file) for f in (t.target, t.prev, t.next)}
         out[t.tuple_id] = (pair_prior(s, idx[t.target], idx[t.prev], config),

@@ -67,7 +67,7 @@ def prior_metrics(prepared: PreparedSet, scenes: dict[str, ScenePoses],
                          "ratio": float(np.linalg.norm(est[:3, 3])) / length})
     frames = sum(len(s.raw_files) for s in scenes.values())
     registered = sum(int(s.registered.sum()) for s in scenes.values())
-    reliable = sum(p.reliable for pair in priors.values() for p in pair)
+    reliable = sum(p.reliable for t in prepared.tuples for p in priors[t.tuple_id])  # the training pairs
     per_scene = {}
     for name, s in scenes.items():
         mine = [r for r in rows if r["scene"] == name and r["reliable"]]

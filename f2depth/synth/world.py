@@ -42,6 +42,8 @@ def generate(cfg: SynthConfig, paths: OutputPaths, progress: bool = True) -> dic
     clips = write_clips(paths.nyu_raw, sorted({r["room"] for r in by_ds.get("nyu_raw", [])}), paths.clips,
                         cfg.clips)
     manifest = _manifest(cfg, by_ds)
+    # which raw frame each clip frame shows: how prepare finds the ingested clips' ground truth
+    manifest["clips"] = {scene: c["raw_frames"] for scene, c in sorted(clips.items())}
     write_json(paths.synth_gt / "manifest.json", manifest)
     metrics = _metrics(cfg, by_ds, manifest, time.perf_counter() - t0)
     metrics["clips"] = {"scenes": len(clips), "frames": sum(c["frames"] for c in clips.values()),

@@ -29,7 +29,7 @@ import torch
 from torch.utils.data import Dataset
 
 from f2depth.data.images import to_tensor
-from f2depth.data.prepared import PreparedSet
+from f2depth.data.prepared import VAL_TUPLES, PreparedSet
 from f2depth.epochs import sample_generator
 from f2depth.keypoints import KeypointFile, fill_up
 from f2depth.poses.store import PosePriors
@@ -54,19 +54,23 @@ class TupleDataset(Dataset):
     primary accessor; ``ds[i]`` is ``item(i, epoch=0)``."""
 
     def __init__(self, prepared: PreparedSet | str | os.PathLike, keypoints: KeypointFile | str | os.PathLike,
-                 config: DataConfig, seed: int = 0, priors: PosePriors | None = None) -> None:
+                 config: DataConfig, seed: int = 0, priors: PosePriors | None = None,
+                 held_out: bool = False) -> None:
         self.prepared = prepared if isinstance(prepared, PreparedSet) else PreparedSet(prepared)
         self.keypoints = keypoints if isinstance(keypoints, KeypointFile) else KeypointFile(keypoints)
-        if not self.prepared.tuples:
-            raise ValueError(f"{self.prepared.root / 'tuples.csv'}: no training tuples; check prepare's "
-                             "scene selection (the training scenes need at least 3 sampled frames each)")
+        #: the training tuples, or with ``held_out`` the validation ones (val_tuples.csv, prepare.val_share)
+        self.tuples = self.prepared.val_tuples if held_out else self.prepared.tuples
+        if not self.tuples:
+            raise ValueError(f"{self.prepared.root / (VAL_TUPLES if held_out else 'tuples.csv')}: no "
+                             f"{'held-out' if held_out else 'training'} tuples; check prepare's scene "
+                             "selection and prepare.val_share (a scene needs at least 3 sampled frames)")
         if config.num_points < 1:
             raise ValueError(f"train_depth.num_points must be >= 1, got {config.num_points}")
         self.config = config
         self.seed = int(seed)
         self.height, self.width = self.prepared.hw
         self.K = torch.from_numpy(self.prepared.K).float()
-        missing = [t.target for t in self.prepared.tuples
+        missing = [t.target for t in self.tuples
                    if self.prepared.frame_index(t.target) not in self.keypoints]
         if missing:
             raise ValueError(f"{self.keypoints.path}: no keypoints for {len(missing)} target frames (first: "
@@ -74,17 +78,17 @@ class TupleDataset(Dataset):
                              "`dvc repro keypoints`")
         self.keypoints.check_inside(self.height, self.width)  # never clamp stray points silently
         if priors is not None:
-            priors.check_covers([t.tuple_id for t in self.prepared.tuples])
+            priors.check_covers([t.tuple_id for t in self.tuples])
         self.priors = priors
 
     def __len__(self) -> int:
-        return len(self.prepared.tuples)
+        return len(self.tuples)
 
     def __getitem__(self, index: int) -> dict[str, torch.Tensor]:
         return self.item(index, 0)
 
     def item(self, index: int, epoch: int) -> dict[str, torch.Tensor]:
-        t = self.prepared.tuples[index]
+        t = self.tuples[index]
         frames = [to_tensor(self.prepared.image(fid)) for fid in (t.target, t.prev, t.next)]
         kp = self.keypoints.tensor(self.prepared.frame_index(t.target))
         segments = torch.from_numpy(self.prepared.segments(t.tuple_id))

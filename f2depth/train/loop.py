@@ -30,6 +30,7 @@ from f2depth.precision import grad_scaler
 from f2depth.train.data import EpochView, TupleDataset, rank_indices
 from f2depth.train.diagnostics import DIAGNOSTIC_KEYS
 from f2depth.train.distributed import DistContext, agree_finite, all_reduce_mean, barrier, unwrap, wrap_model
+from f2depth.train.heldout import HELDOUT_KEYS
 from f2depth.train.schedule import LRSchedule
 from f2depth.train.step import TERMS, StepConfig, batch_to, train_step
 from f2depth.train.teacher import FlowTeacher
@@ -37,7 +38,7 @@ from f2depth.train.teacher import FlowTeacher
 #: Columns of history.csv (DVC plots, x = epoch), every loss term by name among them; empty cells for values
 #: a row does not have (e.g. the flow terms of the P²Net baseline).
 HISTORY_COLUMNS = ["epoch", PHOTOMETRIC, *TERMS, "total", "steps", "skipped_steps", "lr", "val_abs_rel",
-                   "val_a1", *DIAGNOSTIC_KEYS, "seconds", "val_seconds"]
+                   "val_a1", *HELDOUT_KEYS, *DIAGNOSTIC_KEYS, "seconds", "val_seconds"]
 
 
 @dataclass(frozen=True)

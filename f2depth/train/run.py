@@ -26,7 +26,7 @@ from typing import Any
 
 from f2depth import tracking
 from f2depth.data.errors import DataError
-from f2depth.data.prepared import PreparedSet
+from f2depth.data.prepared import VAL_TUPLES, PreparedSet
 from f2depth.depth import DepthModel, DepthModelConfig, save_checkpoint
 from f2depth.epochs import fingerprints
 from f2depth.poses.store import PosePriors
@@ -34,6 +34,7 @@ from f2depth.superpixels import scaled_min_area
 from f2depth.train.data import DataConfig, TupleDataset, batch_problem
 from f2depth.train.diagnostics import DIAGNOSTIC_KEYS, TrainTruth, constant_depth_metrics, diagnose
 from f2depth.train.distributed import DistContext, barrier
+from f2depth.train.heldout import HELDOUT_KEYS, HeldOutValidator
 from f2depth.train.loop import FitResult, LoopConfig, fit, seed_everything
 from f2depth.train.settings import TrainSettings
 from f2depth.train.step import StepConfig
@@ -60,13 +61,17 @@ def _summary(result: FitResult) -> dict[str, Any]:
     hist = result.history
     first = next((r for r in hist if r["epoch"] == 0), {})
     last = hist[-1] if hist else {}
-    other = ("epoch", "lr", "seconds", "val_seconds", "steps", "skipped_steps", *DIAGNOSTIC_KEYS)
+    other = ("epoch", "lr", "seconds", "val_seconds", "steps", "skipped_steps", *DIAGNOSTIC_KEYS,
+             *HELDOUT_KEYS)
     losses = {k: v for k, v in last.items() if k not in other and not k.startswith("val_")}
+    heldout = {f"heldout_{name}": {k.removeprefix("heldout_"): row.get(k) for k in HELDOUT_KEYS if k in row}
+               for name, row in (("untrained", first), ("trained", last)) if "heldout_ph" in row}
     return {
         "val_untrained": {"abs_rel": first.get("val_abs_rel"), "a1": first.get("val_a1")},
         "val_trained": {"abs_rel": last.get("val_abs_rel"), "a1": last.get("val_a1")},
         "train_untrained": {k: first.get(k) for k in DIAGNOSTIC_KEYS if k in first},
         "train_trained": {k: last.get(k) for k in DIAGNOSTIC_KEYS if k in last},
+        **heldout,
         "final_losses": losses,
         "seconds": round(sum(r.get("seconds", 0.0) + r.get("val_seconds", 0.0) for r in hist), 2),
         "seconds_per_epoch": round(sum(r.get("seconds", 0.0) for r in hist if r["epoch"] > 0)
@@ -121,11 +126,18 @@ def train_variant(
     if problem := batch_problem(len(dataset), s.batch_size, ctx.world_size):  # before any model is built
         raise DataError(Path(s.prepared) / "tuples.csv", *problem)
     teacher = FlowTeacher.load(s.flow_model, ctx.device) if s.flow_model else None
+    if not s.nyu_labeled and not prepared.val_tuples:
+        raise DataError(Path(s.prepared) / VAL_TUPLES, "no validation set: data.nyu_labeled is null and the "
+                        "prepared set holds no held-out tuples", "set prepare.val_share (e.g. 0.2) and re-run"
+                        " prepare, or point data.nyu_labeled (and data.nyu_splits) at NYU's labeled set")
     validator = make_validator(s.nyu_labeled, s.nyu_splits, h, w, ctx.device, gt=s.val_gt, crop=s.val_crop,
-                               max_images=s.val_max_images) if ctx.is_main else None
+                               max_images=s.val_max_images) if ctx.is_main and s.nyu_labeled else None
+    heldout = (HeldOutValidator(prepared, dataset.keypoints, s.num_points, priors, ctx.device,
+                                max_tuples=s.val_max_images) if ctx.is_main and prepared.val_tuples else None)
     truth = (TrainTruth.from_prepared(prepared, s.diagnostic_tuples, priors)
              if ctx.is_main and s.diagnostic_tuples > 0 else None)
     floor = constant_depth_metrics(validator) if validator is not None else {}
+    heldout_floors = heldout.floors() if heldout is not None else None
     step_config = StepConfig(weights=s.weights, min_area=scaled_min_area(h, w), amp=s.amp)
     schedule = s.schedule
     build_dir = Path(build_dir)
@@ -159,7 +171,7 @@ def train_variant(
                            sync_bn=s.sync_bn, progress=progress, val_every=s.val_every,
                            state_every=s.state_every),
                 ctx=ctx, checkpoint=state_file, resume=resume, fingerprint=run_fps[seed],
-                validate=_measure(validator, truth, ctx.device),
+                validate=_measure(validator, heldout, truth, ctx.device),
                 on_epoch=run.log_epoch,
             )  # fmt: skip
             summary = {"seed": seed, **_summary(result)}
@@ -186,6 +198,7 @@ def train_variant(
         "resnet_init": s.imagenet_weights or "random", "init_depth": s.init_depth, "amp": s.amp,
         **{k: v for k, v in per_seed[0].items() if k != "seed"},
         "val_constant_depth": {"abs_rel": floor.get("val_abs_rel"), "a1": floor.get("val_a1")},
+        **({"heldout": {"tuples": len(heldout), **heldout_floors}} if heldout is not None else {}),
         "per_seed": per_seed, "wall_seconds": round(time.perf_counter() - t0, 2),
     }  # fmt: skip
     if validator is not None:
@@ -194,13 +207,16 @@ def train_variant(
     return VariantRun(metrics, main_history)
 
 
-def _measure(validator, truth: TrainTruth | None, device):
-    """The per-epoch measurement ``fit`` calls on rank 0: validation plus, with ground truth, diagnostics."""
-    if validator is None and truth is None:
+def _measure(validator, heldout: HeldOutValidator | None, truth: TrainTruth | None, device):
+    """The per-epoch measurement ``fit`` calls on rank 0: the NYU-format validation, the held-out tuples and,
+    with ground truth, the diagnostics on the training tuples (whichever there are)."""
+    if validator is None and heldout is None and truth is None:
         return None
 
     def measure(model: DepthModel) -> dict[str, float]:
         out = validator(model) if validator is not None else {}
+        if heldout is not None:
+            out.update(heldout(model))
         if truth is not None:
             out.update(diagnose(model, truth, device))
         return out

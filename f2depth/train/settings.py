@@ -67,8 +67,8 @@ class TrainSettings:
     without: tuple[str, ...]  # variants.<name>.without
     prepared: str  # data.prepared
     keypoints_file: str  # data.keypoints/train.npz
-    nyu_labeled: str  # data.nyu_labeled, data.nyu_splits: the per-epoch validation
-    nyu_splits: str
+    nyu_labeled: str | None  # data.nyu_labeled, data.nyu_splits: the per-epoch validation (null: none, then
+    nyu_splits: str | None  # the held-out tuples of prepare.val_share are the only one)
     val_gt: str  # evaluate.nyu_gt, evaluate.nyu_crop: validated as the evaluation scores
     val_crop: str
     poses: str | None  # data.poses, the pose-prior folder, when pose_prior is geometric
@@ -132,6 +132,10 @@ def loss_weights(params: dict[str, Any], without: Iterable[str] = ()) -> dict[st
     return {term: 0.0 if term in off else w for term, w in weights.items()}
 
 
+def _path_or_none(value: Any) -> str | None:
+    return None if value is None else str(value)
+
+
 def settings_from_params(params: dict[str, Any], name: str) -> TrainSettings:
     """Resolve variant ``name`` from a loaded params dict (``f2depth.params.load``); errors name the key."""
     v = variant(params, name)
@@ -141,8 +145,8 @@ def settings_from_params(params: dict[str, Any], name: str) -> TrainSettings:
         "without": v.without,
         "prepared": str(P.get(params, "data.prepared")),
         "keypoints_file": str(Path(P.get(params, "data.keypoints")) / "train.npz"),
-        "nyu_labeled": str(P.get(params, "data.nyu_labeled")),
-        "nyu_splits": str(P.get(params, "data.nyu_splits")),
+        "nyu_labeled": _path_or_none(P.get(params, "data.nyu_labeled", None)),
+        "nyu_splits": _path_or_none(P.get(params, "data.nyu_splits", None)),
         "val_gt": P.value(params, "evaluate.nyu_gt", str),
         "val_crop": P.value(params, "evaluate.nyu_crop", str),
         "poses": str(P.get(params, "data.poses")) if geometric else None,

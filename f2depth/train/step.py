@@ -119,6 +119,15 @@ def teacher_forward(teacher: FlowTeacher | None, batch: dict[str, torch.Tensor],
         return teacher(batch["target"], batch["next"], features=features)
 
 
+def photometric_term(batch: dict[str, torch.Tensor], depth: torch.Tensor, T_prev: torch.Tensor,
+                     T_next: torch.Tensor) -> torch.Tensor:
+    """L_ph of a batch of tuples — target, prev, next (B,3,H,W), K (B,3,3), points (B,N,2) from the batch —
+    with depth (B,1,H,W) metres and T_prev, T_next (B,4,4) src_T_tgt → scalar (float32)."""
+    return patch_photometric_loss(batch["target"].float(), [batch["prev"].float(), batch["next"].float()],
+                                  depth.float(), batch["K"].float(), [T_prev.float(), T_next.float()],
+                                  batch["points"])
+
+
 def loss_terms(net: NetOutput, batch: dict[str, torch.Tensor], flow: TeacherOutput | None,
                config: StepConfig) -> dict[str, torch.Tensor]:
     """The scalar loss terms by name (float32, autocast off); see the module docstring."""
@@ -128,8 +137,7 @@ def loss_terms(net: NetOutput, batch: dict[str, torch.Tensor], flow: TeacherOutp
     with ctx:
         target, K = batch["target"].float(), batch["K"].float()
         terms = {
-            "ph": patch_photometric_loss(target, [batch["prev"].float(), batch["next"].float()], net.depth, K,
-                                         [net.T_prev, net.T_next], batch["points"]),
+            "ph": photometric_term(batch, net.depth, net.T_prev, net.T_next),
             "smooth": edge_aware_smoothness(net.disp, target),
             "planar": planar_loss(net.depth, torch.linalg.inv(K), batch["segments"], min_area=config.min_area,
                                   min_depth=config.min_depth, max_depth=config.max_depth),
