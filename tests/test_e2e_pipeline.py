@@ -74,6 +74,7 @@ TINY: dict[str, object] = {
     "flow_finetune.eval_train_pairs": 2,
     "flow_figure.pairs": 1,
     "train_depth.epochs": 1,
+    "train_depth.seeds": [0],
     "train_depth.batch_size": 2,
     "train_depth.num_points": 50,
     "train_depth.val_max_images": 2,
