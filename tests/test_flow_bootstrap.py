@@ -104,16 +104,17 @@ def test_multiscale_epe_is_zero_for_the_area_averaged_truth_and_weighs_levels():
 
 
 def test_a_short_bootstrap_learns_flow_that_follows_the_images():
-    """The whole recipe at a small scale (≈ 2 minutes; the default's data at 64×128, 150 + 150 steps of
-    batch 8): matching top-1 far above chance (1/81) after phase A, then on held-out pairs an EPE below
-    zero flow's and a clearly positive swap consistency. A network that ignores its inputs (what plain
-    training from MSRA ends at) has swap ≈ −1 and the EPE of zero flow."""
+    """The whole recipe at a small scale (≈ 3 minutes on one slow thread; the default's data at 64×64,
+    100 phase-A steps and 200 phase-B steps of batch 8, lr 6e-4 falling to 1e-4): matching top-1 far
+    above chance (1/81) after phase A, then on held-out pairs an EPE well below zero flow's and a clearly
+    positive swap consistency. A network that ignores its inputs (what plain training from MSRA ends at)
+    has swap ≈ −1 and the EPE of zero flow. Measured: top-1 0.15 → 0.32, EPE 0.69× zero flow's, swap 0.72."""
     torch.manual_seed(0)
-    data = ChairsSpec(height=64, width=128, max_shift=8, small_share=0.25, rotation_deg=5, scale=0.05,
+    data = ChairsSpec(height=64, width=64, max_shift=8, small_share=0.25, rotation_deg=5, scale=0.05,
                       min_shapes=1, max_shapes=4, min_size=0.12, max_size=0.4, supersample=1, textures=24,
                       image_crops=0)
-    cfg = BootstrapConfig(data=data, batch_size=8, steps_per_epoch=50, feature_epochs=3, feature_lr=2e-3,
-                          epochs=3, lr=3e-4, final_lr=3e-4, matching_weight=0.5, matching_strides=(4, 8),
+    cfg = BootstrapConfig(data=data, batch_size=8, steps_per_epoch=50, feature_epochs=2, feature_lr=2e-3,
+                          epochs=4, lr=6e-4, final_lr=1e-4, matching_weight=0.5, matching_strides=(4, 8),
                           w_scales=(0.32, 0.08, 0.02, 0.01, 0.005), calibration_pairs=4, heldout_pairs=16)
     pool = texture_pool(data, np.random.default_rng(0))
     model = PWCLite()
@@ -121,11 +122,10 @@ def test_a_short_bootstrap_learns_flow_that_follows_the_images():
                           device="cpu", progress=False)
     start, after, final = out["start"], out["after_features"], out["final"]
     assert start["heldout_epe"] == pytest.approx(start["heldout_zero_epe"])  # zeroed heads: zero flow
-    # far above chance (1/81), and learned in phase A (0.197 / 0.2+ on two machines: float differences)
-    assert after["heldout_top1_s4"] > 0.15 and after["heldout_top1_s4"] > start["heldout_top1_s4"] + 0.05
-    assert final["heldout_epe"] < 0.95 * final["heldout_zero_epe"]
-    assert final["heldout_swap"] > 0.0
-    assert [r["phase"] for r in out["history"]] == ["features"] * 3 + ["all"] * 3
+    assert after["heldout_top1_s4"] > 0.2 and after["heldout_top1_s4"] > start["heldout_top1_s4"] + 0.08
+    assert final["heldout_epe"] < 0.85 * final["heldout_zero_epe"]
+    assert final["heldout_swap"] > 0.35
+    assert [r["phase"] for r in out["history"]] == ["features"] * 2 + ["all"] * 4
 
 
 def test_phase_b_lr_falls_along_a_cosine_from_lr_to_final_lr():
