@@ -104,7 +104,7 @@ def test_multiscale_epe_is_zero_for_the_area_averaged_truth_and_weighs_levels():
 
 
 def test_a_short_bootstrap_learns_flow_that_follows_the_images():
-    """The whole recipe at a small scale (≈ 3 minutes on one slow thread; the default's data at 64×64,
+    """The whole recipe at a small scale (≈ 5 minutes on one slow thread; the default's generator at 64×64,
     100 phase-A steps and 200 phase-B steps of batch 8, lr 6e-4 falling to 1e-4): matching top-1 far
     above chance (1/81) after phase A, then on held-out pairs an EPE well below zero flow's and a clearly
     positive swap consistency. A network that ignores its inputs (what plain training from MSRA ends at)
