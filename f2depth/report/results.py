@@ -131,21 +131,29 @@ def flow_epe(flow_model: str | None, flow_metrics: dict[str, dict[str, Any]], pr
 
 def headline(results: dict[str, VariantResults], train_metrics: dict[str, dict[str, Any]]) -> dict[str, Any]:
     """One flat record per variant for ``dvc exp show`` (the ``tables`` stage's metrics file): NYU δ1 and
-    AbsRel of the trained network (mean over seeds), and beside them the floors from its training run —
-    the untrained network and a constant depth on the same test images (``train_metrics``: variant →
-    ``metrics/train_depth/<variant>.json``)."""
+    AbsRel of the trained network (mean over seeds) with their sample standard deviation over the seeds
+    (``*_std``, None for one seed) and the seed count ``n_seeds``, and beside them the floors from its
+    training run — the untrained network and a constant depth on the same test images (``train_metrics``:
+    variant → ``metrics/train_depth/<variant>.json``)."""
     out: dict[str, Any] = {}
     for name, r in results.items():
         nyu = r.metrics.get("nyu", {})
         train = train_metrics.get(name, {})
         out[name] = {
             "nyu_a1": nyu.get("a1"), "nyu_abs_rel": nyu.get("abs_rel"),
+            "nyu_a1_std": _sample_std(r.values("nyu", "a1")),
+            "nyu_abs_rel_std": _sample_std(r.values("nyu", "abs_rel")), "n_seeds": r.n_seeds,
             "untrained_a1": train.get("val_untrained", {}).get("a1"),
             "untrained_abs_rel": train.get("val_untrained", {}).get("abs_rel"),
             "constant_depth_a1": train.get("val_constant_depth", {}).get("a1"),
             "constant_depth_abs_rel": train.get("val_constant_depth", {}).get("abs_rel"),
         }  # fmt: skip
     return out
+
+
+def _sample_std(values: list[float] | None) -> float | None:
+    """Sample standard deviation (ddof 1, as the tables' ``mean ± std``); None for fewer than two values."""
+    return float(np.std(values, ddof=1)) if values is not None and len(values) > 1 else None
 
 
 def read_history(path: str | os.PathLike) -> dict[str, list[float]]:
