@@ -7,7 +7,9 @@ or ``python benchmarks/gpu_check.py --device cpu --quick`` (tiny sizes; what CI 
 1. Correctness (any failure is listed and makes the exit status 1):
    * one depth training step of every variant of params.yaml (its loss weights; a random frozen PWC-Lite
      for the variants with a flow model) without and with mixed precision: finite terms, and the mixed
-     precision loss equals the float32 loss of the same weights and batch to ``--amp-rtol``;
+     precision loss equals the float32 loss of the same weights and batch to ``--amp-rtol`` (variants
+     with equal weights and the same random teacher, e.g. ``full`` and ``flow_pretrained``, share one
+     run: their rows name it in ``same_as``);
    * one flow fine-tuning step, patch and full loss, without and with mixed precision (same checks);
    * the correlation layer: on CUDA forward and backward against the CPU result; on a CPU against the
      plain shift-and-multiply reference;
@@ -60,14 +62,13 @@ from f2depth.flow.correlation import correlation, correlation_reference  # noqa:
 from f2depth.flow.finetune_data import FlowPairs, collate  # noqa: E402
 from f2depth.io import write_json, write_text  # noqa: E402
 from f2depth.keypoints.store import KeypointFile  # noqa: E402
-from f2depth.precision import autocast, grad_scaler  # noqa: E402
+from f2depth.precision import grad_scaler  # noqa: E402
 from f2depth.superpixels import scaled_min_area  # noqa: E402
 from f2depth.train.data import DataConfig, TupleDataset  # noqa: E402
 from f2depth.train.settings import loss_weights, settings_from_params  # noqa: E402
 from f2depth.train.step import (  # noqa: E402
     StepConfig,
     batch_to,
-    compute_loss,
     teacher_forward,
     train_step,
 )
@@ -164,8 +165,18 @@ def check_depth_variants(checks: Checks, params: dict, ds: TupleDataset, device:
     h, w = ds.prepared.hw
     batch = depth_batch(ds, batch_size, device, channels_last=False)
     teacher = FlowTeacher(PWCLite(), device)
+    ran: dict[tuple, tuple[str, list[dict[str, Any]]]] = {}  # (weights, teacher or not) → variant, rows
     for variant in params["variants"]:
         s = settings_from_params(params, variant)
+        key = (tuple(sorted(s.weights.items())), s.flow_model is not None)
+        if key in ran:  # the same loss on the same batch and random teacher as an earlier variant
+            first, rows = ran[key]
+            for row in rows:
+                info = {k: v for k, v in row.items() if k not in ("check", "ok")}
+                checks.add(row["check"].replace(f" {first} ", f" {variant} ", 1), row["ok"], same_as=first,
+                           **info)
+            continue
+        start = len(checks.rows)
         torch.manual_seed(0)
         base = DepthModel(DepthModelConfig(h, w))
         state = {k: v.clone() for k, v in base.state_dict().items()}
@@ -175,16 +186,15 @@ def check_depth_variants(checks: Checks, params: dict, ds: TupleDataset, device:
             model.load_state_dict(state)
             cfg = StepConfig(s.weights, scaled_min_area(h, w), amp=amp)
             tch = teacher if s.flow_model else None
-            with torch.no_grad():
-                loss, _ = compute_loss(model, batch, tch, cfg)
             opt = torch.optim.Adam(model.parameters(), lr=1e-4)
             scaler = grad_scaler(device, amp)
-            _, logs = train_step(model, opt, batch, tch, cfg, scaler)
-            losses[amp] = float(loss)
+            loss, logs = train_step(model, opt, batch, tch, cfg, scaler)
+            losses[amp] = float(loss)  # computed before the update: the same weights and batch for both
             checks.add(f"depth step {variant} {'amp' if amp else 'fp32'}", finite(logs), total=logs["total"])
         d = rel_diff(losses[True], losses[False])
         checks.add(f"depth loss {variant} amp vs fp32", d <= rtol, rel_diff=d, fp32=losses[False],
                    amp=losses[True])
+        ran[key] = (variant, checks.rows[start:])
 
 
 def check_flow_steps(checks: Checks, ds: FlowPairs, device: torch.device, batch_size: int,
@@ -197,15 +207,10 @@ def check_flow_steps(checks: Checks, ds: FlowPairs, device: torch.device, batch_
             torch.manual_seed(0)
             model = PWCLite().to(device).train()
             batch = flow_batch(ds, batch_size, cfg)
-            with torch.no_grad(), autocast(device, amp):
-                fw, bw = model(batch["net1"].to(device), batch["net2"].to(device), with_backward=True)
-            loss, _ = ft.batch_loss([f.float() for f in fw], [f.float() for f in bw],
-                                    batch["img1"].to(device), batch["img2"].to(device),
-                                    batch["keypoints"].to(device), batch["keypoint_mask"].to(device), cfg)
             stats = ft.train_step(model, ft.make_optimizer(model, cfg), batch, cfg, device,
                                   grad_scaler(device, cfg.amp))
-            losses[amp] = float(loss)
             ok = stats is not None and finite(stats)
+            losses[amp] = stats["loss"] if ok else math.nan  # computed before the update
             checks.add(f"flow step {loss_name} {'amp' if amp else 'fp32'}", ok,
                        loss=None if stats is None else stats["loss"])
         d = rel_diff(losses[True], losses[False])
@@ -410,13 +415,13 @@ def parse_size(text: str) -> tuple[int, int]:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--device", default="cuda")
-    ap.add_argument("--size", default=None, help="HxW of training (default 288x384; --quick: 64x128)")
+    ap.add_argument("--size", default=None, help="HxW of training (default 288x384; --quick: 64x64)")
     ap.add_argument("--depth-batch", type=int, default=None, help="default 12 (--quick: 2)")
     ap.add_argument("--flow-batch", type=int, default=None, help="default 20 (--quick: 2)")
     ap.add_argument("--workers", type=int, default=None, help="data-loader processes for the data share "
                     "(default 4; --quick: 1)")
     ap.add_argument("--repeats", type=int, default=None, help="timed steps (default 10; --quick: 1)")
-    ap.add_argument("--warmup", type=int, default=None, help="untimed steps first (default 3; --quick: 1)")
+    ap.add_argument("--warmup", type=int, default=None, help="untimed steps first (default 3; --quick: 0)")
     ap.add_argument("--amp-rtol", type=float, default=0.03, help="mixed precision loss vs float32")
     ap.add_argument("--compile", action="store_true", help="torch.compile the depth model")
     ap.add_argument("--channels-last", action="store_true", help="channels_last memory format")
@@ -429,11 +434,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--ddp-worker", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     quick = args.quick
-    args.size = args.size or ("64x128" if quick else "288x384")
+    args.size = args.size or ("64x64" if quick else "288x384")
     args.depth_batch = args.depth_batch or (2 if quick else 12)
     args.flow_batch = args.flow_batch or (2 if quick else 20)
     args.repeats = args.repeats or (1 if quick else 10)
-    args.warmup = args.warmup if args.warmup is not None else (1 if quick else 3)
+    args.warmup = args.warmup if args.warmup is not None else (0 if quick else 3)
     args.workers = args.workers if args.workers is not None else (1 if quick else 4)
     if args.ddp_worker:
         ddp_worker(args)

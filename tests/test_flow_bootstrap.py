@@ -103,6 +103,7 @@ def test_multiscale_epe_is_zero_for_the_area_averaged_truth_and_weighs_levels():
     assert levels[0] == pytest.approx(5.0, rel=1e-5) and float(loss) == pytest.approx(0.32 * 5.0, rel=1e-5)
 
 
+@pytest.mark.slow
 def test_a_short_bootstrap_learns_flow_that_follows_the_images():
     """The whole recipe at a small scale (≈ 5 minutes on one slow thread; the default's generator at 64×64,
     100 phase-A steps and 200 phase-B steps of batch 8, lr 6e-4 falling to 1e-4): matching top-1 far

@@ -202,6 +202,7 @@ def test_a_locked_mlflow_store_only_warns(tmp_path, monkeypatch, caplog):
     assert ran == [True] and "MLflow mirror off" in caplog.text
 
 
+@pytest.mark.slow
 def test_flow_pretrain_killed_with_9_resumes_to_the_same_weights(tmp_path):
     """The chairs route (the CPU default), killed with -9 once its first epoch's state is written, then run
     again: the teacher equals an uninterrupted run's, bit for bit."""
@@ -256,9 +257,11 @@ def test_a_truncated_model_file_is_one_line(ckpt, tmp_path, capfd, kind):
             load_flow_model(tmp_path / "cut.pt")
 
 
-def test_two_thousand_images_stream_in_bounded_memory(ckpt, tmp_path):
+@pytest.mark.slow
+def test_twelve_hundred_images_stream_in_bounded_memory(ckpt, tmp_path):
     """`predict` streams a folder: a frame's image and depth are dropped once its files are written, so
-    memory does not grow with the number of frames (2,000 frames that together are ~170 MB of pixels)."""
+    memory does not grow with the number of frames (1,000 frames after the first 200: ~86 MB of image and
+    depth pixels, twice the bound on the growth)."""
     import resource
 
     from f2depth.inference.backends import TorchBackend
@@ -267,7 +270,7 @@ def test_two_thousand_images_stream_in_bounded_memory(ckpt, tmp_path):
 
     folder = tmp_path / "in"
     folder.mkdir()
-    for i in range(2000):
+    for i in range(1200):
         cv2.imwrite(str(folder / f"f{i:04d}.png"), np.full((96, 128, 3), i % 251, np.uint8))
     frames = iter(open_source(folder))
     predictor = Predictor(TorchBackend.from_checkpoint(ckpt, "cpu"))
@@ -279,7 +282,7 @@ def test_two_thousand_images_stream_in_bounded_memory(ckpt, tmp_path):
 
     run_predict(head(200), predictor, settings)
     peak_after_200 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss  # KiB on Linux
-    summary = run_predict(head(1800), predictor, settings)
+    summary = run_predict(head(1000), predictor, settings)
     growth_mib = (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - peak_after_200) / 1024
-    assert summary["frames"] == 1800 and len(list((tmp_path / "out").glob("*_depth.npy"))) == 2000
-    assert growth_mib < 40, f"peak memory grew by {growth_mib:.0f} MiB over 1,800 more frames"
+    assert summary["frames"] == 1000 and len(list((tmp_path / "out").glob("*_depth.npy"))) == 1200
+    assert growth_mib < 40, f"peak memory grew by {growth_mib:.0f} MiB over 1,000 more frames"
