@@ -193,13 +193,14 @@ def test_dvc_repro_runs_every_stage_then_is_up_to_date(tmp_path):
 
 
 def killed_stages_resume_or_redo_identically(repo: Path, params: dict, env: dict[str, str]) -> None:
-    """kill -9 inside `dvc repro` on the finished tiny repository: each killed stage, run again, ends with
-    the outputs of the uninterrupted run above."""
+    """kill -9 inside `dvc repro -f -s` on the finished tiny repository: each killed stage, forced again,
+    ends with the outputs of the uninterrupted run above (`flow_finetune` resuming from its state)."""
     dvc = str(BIN / "dvc")
     whole = load_flow_model(repo / "models" / "flow_patch.pt").state_dict()
     state = repo / "tmp" / "flow_finetune" / "patch.pt"
     kill_when([dvc, "repro", "-f", "-s", "flow_finetune@patch"], repo, env, state.exists)
-    run([dvc, "repro", "--no-run-cache", "flow_finetune@patch"], repo, env)  # the run cache would restore
+    # forced: a plain `dvc repro` would check out the outputs dvc.lock still names (the run above) instead
+    run([dvc, "repro", "-f", "-s", "flow_finetune@patch"], repo, env)
     metrics = json.loads((repo / "metrics" / "flow_finetune" / "patch.json").read_text())
     assert metrics["resumed_from"] >= 1 and not state.exists()
     resumed = load_flow_model(repo / "models" / "flow_patch.pt").state_dict()
@@ -215,7 +216,7 @@ def killed_stages_resume_or_redo_identically(repo: Path, params: dict, env: dict
                    for p in psutil.process_iter(["cmdline", "create_time"]))
 
     kill_when([dvc, "repro", "-f", "-s", "poses"], repo, env, poses_under_way)
-    run([dvc, "repro", "--no-run-cache", "poses"], repo, env)
+    run([dvc, "repro", "-f", "-s", "poses"], repo, env)
     again = {p.relative_to(repo): p.read_bytes() for p in (repo / poses).rglob("*") if p.is_file()}
     assert not any(p.name.startswith(f".{poses.name}.") for p in building.iterdir())  # no temporaries left
     assert first and first == again
