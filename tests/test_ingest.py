@@ -4,6 +4,7 @@ poses, with its known K and lens distortion."""
 from __future__ import annotations
 
 import json
+import shutil
 import struct
 from pathlib import Path
 
@@ -265,6 +266,11 @@ def test_bad_inputs_are_one_line_errors_and_write_nothing(tmp_path):
     (mixed / "b.avi").write_bytes(still.read_bytes())
     with pytest.raises(DataError, match="mixed: a folder with 1 images and 1 videos"):
         collect_inputs([mixed])
+    (mixed / "b.avi").unlink()
+    (mixed / "room").mkdir()
+    cv2.imwrite(str(mixed / "room" / "a.png"), np.zeros((8, 8), np.uint8))
+    with pytest.raises(DataError, match="mixed: a folder with 1 images and 0 videos, 1 folders of images"):
+        collect_inputs([mixed])
     frames = tmp_path / "frames"
     frames.mkdir()
     for k in range(3):
@@ -293,6 +299,13 @@ def test_a_rate_sets_the_step_of_a_video_and_image_folders_are_scenes_too(clip, 
     summary = ingest([folder], tmp_path / "b", CONFIG, fov=70.0, progress=False)
     report = summary["scenes"]["my_frames"]
     assert report["kind"] == "images" and report["fps"] is None and report["kept"] >= 3
+    clips = tmp_path / "clips"  # data.video: clips and folders of images side by side, a scene each
+    clips.mkdir()
+    shutil.copy(root / "living room.avi", clips / "kitchen.avi")
+    shutil.copytree(folder, clips / "my frames")
+    (clips / "notes").mkdir()  # a folder without images is no scene
+    assert [(i.path.name, i.scene) for i in collect_inputs([clips])] == [("kitchen.avi", "kitchen"),
+                                                                        ("my frames", "my_frames")]
     assert report["kept"] + report["static"] == 12
     assert summary["camera"]["K"][0][0] == pytest.approx(160 / np.tan(np.radians(35)))
 

@@ -71,21 +71,25 @@ def scene_name(path: Path, taken: set[str]) -> str:
 
 
 def collect_inputs(paths: Sequence[str | os.PathLike]) -> list[_Input]:
-    """The scenes of the given paths: each video, each image folder; a folder of videos only gives one
-    scene per video. A folder that mixes images and videos, or holds neither → DataError."""
+    """The scenes of the given paths: each video, each image folder. A folder without images of its own
+    gives one scene per video in it and one per subfolder of images (``data.video``: clips and image
+    folders side by side). A folder that mixes images with videos or with folders of images → DataError."""
     found: list[Path] = []
     for raw in paths:
         p = Path(raw)
         if not p.exists():
             raise DataError(p, "input not found", "give videos or folders of images")
         if p.is_dir():
-            entries = [e for e in sorted(p.iterdir()) if e.is_file() and not e.name.startswith(".")]
-            videos = [e for e in entries if e.suffix.lower() in VIDEO_EXTENSIONS]
-            images = [e for e in entries if e.suffix.lower() in IMAGE_EXTENSIONS]
-            if videos and images:
-                raise DataError(p, f"a folder with {len(images)} images and {len(videos)} videos",
-                                "one scene per input: move the videos out and give them separately")
-            found.extend(videos if videos else [p])
+            entries = [e for e in sorted(p.iterdir()) if not e.name.startswith(".")]
+            videos = [e for e in entries if e.is_file() and e.suffix.lower() in VIDEO_EXTENSIONS]
+            images = [e for e in entries if e.is_file() and e.suffix.lower() in IMAGE_EXTENSIONS]
+            folders = [e for e in entries if e.is_dir() and any(
+                f.is_file() and f.suffix.lower() in IMAGE_EXTENSIONS for f in e.iterdir())]
+            if images and (videos or folders):
+                raise DataError(p, f"a folder with {len(images)} images and {len(videos)} videos, "
+                                f"{len(folders)} folders of images", "one scene per input: move the images "
+                                "into a folder of their own, or give the videos separately")
+            found.extend(sorted(videos + folders) if videos or folders else [p])
         elif p.suffix.lower() in VIDEO_EXTENSIONS:
             found.append(p)
         else:
