@@ -299,6 +299,8 @@ def test_a_rate_sets_the_step_of_a_video_and_image_folders_are_scenes_too(clip, 
     summary = ingest([folder], tmp_path / "b", CONFIG, fov=70.0, progress=False)
     report = summary["scenes"]["my_frames"]
     assert report["kind"] == "images" and report["fps"] is None and report["kept"] >= 3
+    assert report["kept"] + report["static"] == 12
+    assert summary["camera"]["K"][0][0] == pytest.approx(160 / np.tan(np.radians(35)))
     clips = tmp_path / "clips"  # data.video: clips and folders of images side by side, a scene each
     clips.mkdir()
     shutil.copy(root / "living room.avi", clips / "kitchen.avi")
@@ -306,8 +308,6 @@ def test_a_rate_sets_the_step_of_a_video_and_image_folders_are_scenes_too(clip, 
     (clips / "notes").mkdir()  # a folder without images is no scene
     assert [(i.path.name, i.scene) for i in collect_inputs([clips])] == [("kitchen.avi", "kitchen"),
                                                                         ("my frames", "my_frames")]
-    assert report["kept"] + report["static"] == 12
-    assert summary["camera"]["K"][0][0] == pytest.approx(160 / np.tan(np.radians(35)))
 
 
 def test_a_frame_of_another_size_is_named(tmp_path):

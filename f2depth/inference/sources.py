@@ -66,12 +66,17 @@ def read_input_image(path: str | os.PathLike) -> np.ndarray:
         raise DataError(exc.path, exc.problem, _FIX_IMAGE) from None
 
 
-def list_images(folder: str | os.PathLike) -> list[Path]:
+def image_files(folder: str | os.PathLike) -> list[Path]:
     """Images directly inside ``folder`` with a supported extension, sorted by name (hidden files and
-    other extensions ignored). None → DataError."""
+    other extensions ignored); possibly none."""
+    return sorted(p for p in Path(folder).iterdir()
+                  if p.is_file() and not p.name.startswith(".") and p.suffix.lower() in IMAGE_EXTENSIONS)
+
+
+def list_images(folder: str | os.PathLike) -> list[Path]:
+    """:func:`image_files` of ``folder``; none → DataError."""
     root = Path(folder)
-    files = sorted(p for p in root.iterdir()
-                   if p.is_file() and not p.name.startswith(".") and p.suffix.lower() in IMAGE_EXTENSIONS)
+    files = image_files(root)
     if not files:
         raise DataError(root, f"no images in this folder (supported: {' '.join(IMAGE_EXTENSIONS)})",
                         "point --input at a folder of images, an image or a video")

@@ -30,9 +30,9 @@ from f2depth.data.errors import DataError
 from f2depth.data.nyu_raw import CAMERA_FILE
 from f2depth.data.prepare import prepare_image
 from f2depth.inference.sources import (
-    IMAGE_EXTENSIONS,
     VIDEO_EXTENSIONS,
     Frame,
+    image_files,
     open_source,
 )
 from f2depth.ingest.camera_files import choose_camera
@@ -82,9 +82,8 @@ def collect_inputs(paths: Sequence[str | os.PathLike]) -> list[_Input]:
         if p.is_dir():
             entries = [e for e in sorted(p.iterdir()) if not e.name.startswith(".")]
             videos = [e for e in entries if e.is_file() and e.suffix.lower() in VIDEO_EXTENSIONS]
-            images = [e for e in entries if e.is_file() and e.suffix.lower() in IMAGE_EXTENSIONS]
-            folders = [e for e in entries if e.is_dir() and any(
-                f.is_file() and f.suffix.lower() in IMAGE_EXTENSIONS for f in e.iterdir())]
+            images = image_files(p)
+            folders = [e for e in entries if e.is_dir() and image_files(e)]
             if images and (videos or folders):
                 raise DataError(p, f"a folder with {len(images)} images and {len(videos)} videos, "
                                 f"{len(folders)} folders of images", "one scene per input: move the images "
