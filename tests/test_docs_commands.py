@@ -32,7 +32,7 @@ def unactivated_stage_runs(text: str) -> list[str]:
         active = False
         for line in block:
             command = line.split("#", 1)[0]
-            active = active or "source .venv/bin/activate" in command or ". .venv/bin/activate" in command
+            active = active or ".venv/bin/activate" in command  # `source` or `.`
             if RUNS_STAGES.search(command) and not active:
                 bad.append(line.strip())
     return bad
