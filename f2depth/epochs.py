@@ -54,6 +54,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from f2depth import threads
 from f2depth.io import csv_text, torch_save, write_text
 
 FORMAT = "f2depth.train_state"
@@ -274,6 +275,7 @@ class EpochLoop:
             bar = tqdm(batches(epoch), desc=f"{self.run} {epoch}/{self.epochs}", leave=False,
                        disable=not (self.progress and self.main))
             for batch in bar:
+                threads.adapt()
                 try:
                     stats = step(batch)
                 except FloatingPointError as exc:

@@ -22,8 +22,9 @@ AFFINITY = len(os.sched_getaffinity(0))
 
 @pytest.fixture
 def restore_threads():
-    before_torch, before_cv2 = torch.get_num_threads(), cv2.getNumThreads()
+    before_torch, before_cv2, before_free = torch.get_num_threads(), cv2.getNumThreads(), threads._free
     yield
+    threads._free = before_free
     torch.set_num_threads(before_torch)
     cv2.setNumThreads(before_cv2)
 
@@ -132,3 +133,64 @@ def test_the_cli_sizes_its_threads_before_the_command_runs(tmp_path, monkeypatch
     with pytest.raises(SystemExit) as info:
         cli.main(["predict", "--threads", "0", "--model", "m.pt", "--input", "a", "--output", "b"])
     assert info.value.code == 2 and "--threads" in capsys.readouterr().err
+
+
+def test_cpu_seconds_adds_the_busy_ticks_of_the_given_cpus(tmp_path):
+    stat = tmp_path / "stat"
+    stat.write_text("cpu  9 9 9 9 9 9 9 9 0 0\n"
+                    "cpu0 100 10 50 999 7 3 2 1 0 0\n"
+                    "cpu1 200 0 100 999 0 0 0 0 0 0\n"
+                    "intr 1 2 3\n")
+    tick = os.sysconf("SC_CLK_TCK")
+    assert threads.cpu_seconds([0], stat) == pytest.approx((100 + 10 + 50 + 3 + 2 + 1) / tick)
+    assert threads.cpu_seconds([0, 1], stat) == pytest.approx((166 + 300) / tick)
+    assert threads.cpu_seconds([5], stat) is None
+    assert threads.cpu_seconds([0], tmp_path / "missing") is None
+    assert threads.cpu_seconds(sorted(os.sched_getaffinity(0))) > 0  # the real /proc/stat
+
+
+def test_threads_for_gives_the_free_cores_within_one_and_the_ceiling():
+    assert threads.threads_for(0.0, 2, 2) == 2
+    assert threads.threads_for(1.0, 2, 2) == 1  # one busy competitor on two cores
+    assert threads.threads_for(0.3, 2, 2) == 2
+    assert threads.threads_for(3.0, 2, 2) == 1
+    assert threads.threads_for(0.0, 16, 4) == 4
+
+
+def test_free_cores_follows_the_other_processes_between_measurements():
+    now = [0.0]
+    busy = [0.0]
+    own = [0.0]
+    free = threads.FreeCores(2, cpus=[0, 1], interval=2.0, busy=lambda cpus: busy[0],
+                             own=lambda: own[0], clock=lambda: now[0])
+
+    def after(seconds, own_cores, other_cores):
+        now[0] += seconds
+        own[0] += seconds * own_cores
+        busy[0] += seconds * (own_cores + other_cores)
+        return free.threads()
+
+    assert after(2.0, 2.0, 0.0) == 2  # alone: both cores
+    assert after(2.0, 1.0, 1.0) == 1  # another process took one core
+    assert after(1.0, 1.0, 0.0) == 1  # too soon to re-measure: the last count
+    assert after(2.0, 1.0, 0.0) == 2  # over the last 3 s: 1/3 core taken by others → both again
+    reserved = threads.FreeCores(2, reserved=1, cpus=[0, 1], interval=2.0, busy=lambda cpus: busy[0],
+                                 own=lambda: own[0], clock=lambda: now[0])
+    now[0] += 2.0
+    busy[0] += 2.0 * 2  # this process's loader worker (a child process) keeps one core busy
+    own[0] += 2.0
+    assert reserved.threads() == 2
+
+
+def test_adapt_runs_only_when_the_count_is_automatic(monkeypatch, restore_threads):
+    monkeypatch.setenv("OMP_NUM_THREADS", "2")
+    assert threads.use(None) == 2
+    assert threads.adapt() is None  # $OMP_NUM_THREADS fixes it
+    assert threads.use(2) == 2 and threads.adapt() is None
+    monkeypatch.delenv("OMP_NUM_THREADS")
+    monkeypatch.setattr(threads, "usable_cpus", lambda cgroup=threads.CGROUP: 2)
+    assert threads.use(None) == 2
+    monkeypatch.setattr(threads._free, "threads", lambda: 1)
+    assert threads.adapt() == 1 and torch.get_num_threads() == 1
+    threads.use(1)
+    assert threads._free is None

@@ -26,6 +26,7 @@ import torch
 import torch.nn.functional as F
 from tqdm import tqdm
 
+from f2depth import threads
 from f2depth.data.errors import DataError
 from f2depth.data.samples import EvalSample
 from f2depth.eval.inputs import batched, report_skipped, run_batch, to_input
@@ -282,6 +283,7 @@ def score(p: Protocol, s: Settings, samples: Iterable[EvalSample], predict_disp:
     as protocol ``p`` with settings ``s``, ``batch`` images per forward pass (of one size)."""
     tally = _Tally()
     for chunk in batched(enumerate(tqdm(samples, desc=p.title, disable=not progress)), batch):
+        threads.adapt()
         for group in _same_size([_prepare(p, s, pos, sample, tally.nonfinite) for pos, sample in chunk]):
             disp = run_batch(predict_disp, [it.x for it in group], device=device, post_process=s.post_process,
                              out_hw=group[0].out_hw, upsample=s.upsample)

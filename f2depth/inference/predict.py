@@ -19,6 +19,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from f2depth import threads
 from f2depth.data.errors import DataError
 from f2depth.data.writable import check_output_folder
 from f2depth.eval.inputs import batched, to_input
@@ -115,6 +116,7 @@ def run_predict(frames: Iterable[Frame], predictor: Predictor, settings: Predict
     bar = tqdm(total=total or None, desc="predict", unit="frame", disable=disable)
     try:
         for batch in batched(frames, settings.batch_size):
+            threads.adapt()
             depths = predictor.predict([f.rgb for f in batch], [f.origin for f in batch])
             if reference is not None and first_origin is None:
                 scale = median_ratio(depths[0], reference, str(settings.scale_from))
