@@ -15,6 +15,8 @@ import argparse
 import statistics
 import tempfile
 import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import cv2
@@ -23,6 +25,7 @@ import torch
 from torch.utils.data import default_collate
 
 from f2depth import params as P
+from f2depth import threads as f2threads
 from f2depth.depth import DepthModel, DepthModelConfig
 from f2depth.flow import PWCLite
 from f2depth.io import imwrite, write_json, write_text
@@ -96,9 +99,10 @@ def time_step(ds: TupleDataset, model: DepthModel, teacher: FlowTeacher, opt, cf
     return t
 
 
-def bench(hw: tuple[int, int], threads: int, repeats: int) -> dict[str, float]:
-    torch.set_num_threads(threads)
-    cv2.setNumThreads(threads)
+@contextmanager
+def depth_step(hw: tuple[int, int]) -> Iterator[Callable[[int], dict[str, float]]]:
+    """A seeded prepared set in a temporary folder and a fresh `full` model → ``step(k)`` (the k-th
+    training step, timed by part)."""
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp)
         write_set(root, hw)
@@ -108,7 +112,19 @@ def bench(hw: tuple[int, int], threads: int, repeats: int) -> dict[str, float]:
         teacher = FlowTeacher(PWCLite())
         opt = torch.optim.Adam(model.parameters(), lr=1e-4)
         cfg = StepConfig(loss_weights(P.load(PARAMS)), min_area=scaled_min_area(*hw))
-        runs = [time_step(ds, model, teacher, opt, cfg, k) for k in range(repeats + 1)][1:]
+        yield lambda k: time_step(ds, model, teacher, opt, cfg, k)
+
+
+def bench(hw: tuple[int, int], threads: int | None, repeats: int) -> dict[str, float]:
+    """Median seconds per part over ``repeats`` steps after one warm-up step. ``threads`` None: the
+    stages' automatic budget (f2depth.threads), adapted before every step."""
+    f2threads.use(threads)
+    with depth_step(hw) as step:
+        runs = []
+        for k in range(repeats + 1):
+            f2threads.adapt()
+            runs.append(step(k))
+    runs = runs[1:]
     out = {p: statistics.median(r[p] for r in runs) for p in PARTS}
     out["total"] = statistics.median(sum(r[p] for p in PARTS) for r in runs)
     return out
