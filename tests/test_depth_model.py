@@ -234,3 +234,36 @@ def test_the_inference_copy_folds_batchnorm_and_predicts_the_same_depth():
         bn.bias.copy_(torch.tensor([0.0, 0.1, -0.1, 0.3]))
         u = torch.randn(1, 3, 8, 8, dtype=torch.float64, generator=g)
         assert torch.allclose(fold_batchnorm(conv, bn)(u), bn(conv(u)), atol=1e-12)
+
+
+def test_the_inference_decoder_writes_upsampling_skip_and_padding_once_with_the_same_values():
+    """Issue 26 item 3: f2depth.depth.fused.upsample_concat_pad equals reflection_pad(cat(upsample(x),
+    skip)) bit for bit (odd sizes, with and without a skip), and the InferenceDecoder gives the
+    DepthDecoder's disparity; bilinear decoders keep the training graph's decoder."""
+    import torch.nn.functional as F
+
+    from f2depth.depth.fused import InferenceDecoder, inference_copy, upsample_concat_pad
+
+    g = torch.Generator().manual_seed(3)
+    for c1, c2, h, w in ((5, 3, 3, 7), (4, 0, 2, 5), (16, 64, 9, 12)):
+        x = torch.randn(2, c1, h, w, generator=g)
+        skip = torch.randn(2, c2, 2 * h, 2 * w, generator=g) if c2 else None
+        parts = [F.interpolate(x, scale_factor=2, mode="nearest")] + ([skip] if c2 else [])
+        ref = F.pad(torch.cat(parts, 1), (1, 1, 1, 1), mode="reflect")
+        got = upsample_concat_pad(x, skip)
+        assert got.shape == ref.shape and torch.equal(got, ref)
+        assert got.is_contiguous(memory_format=torch.channels_last)
+    with pytest.raises(ValueError, match="does not match"):
+        upsample_concat_pad(torch.zeros(1, 2, 3, 3), torch.zeros(1, 2, 5, 6))
+    torch.manual_seed(0)
+    model = DepthModel(DepthModelConfig(height=64, width=96)).eval()
+    copy = inference_copy(model)
+    assert isinstance(copy.depth_decoder, InferenceDecoder)
+    assert copy.depth_decoder.state_dict().keys() == model.depth_decoder.state_dict().keys()
+    feats = [f.contiguous(memory_format=torch.channels_last)
+             for f in model.depth_encoder(torch.rand(2, 3, 64, 96, generator=g))]
+    with torch.inference_mode():
+        ref, got = model.depth_decoder(feats), copy.depth_decoder(feats)
+    assert torch.allclose(got, ref, rtol=0, atol=1e-6) and ref.std() > 0
+    bilinear = DepthModel(DepthModelConfig(height=64, width=96, upsample_mode="bilinear"))
+    assert not isinstance(inference_copy(bilinear).depth_decoder, InferenceDecoder)
