@@ -110,7 +110,7 @@ def depth_step(hw: tuple[int, int]) -> Iterator[Callable[[int], dict[str, float]
         torch.manual_seed(0)
         model = DepthModel(DepthModelConfig(*hw)).train()
         teacher = FlowTeacher(PWCLite())
-        opt = torch.optim.Adam(model.parameters(), lr=1e-4)
+        opt = torch.optim.Adam(model.parameters(), lr=1e-4, fused=True)  # as f2depth.train.loop
         cfg = StepConfig(loss_weights(P.load(PARAMS)), min_area=scaled_min_area(*hw))
         yield lambda k: time_step(ds, model, teacher, opt, cfg, k)
 

@@ -116,7 +116,8 @@ def test_a_short_bootstrap_learns_flow_that_follows_the_images():
                       image_crops=0)
     cfg = BootstrapConfig(data=data, batch_size=8, steps_per_epoch=50, feature_epochs=2, feature_lr=2e-3,
                           epochs=4, lr=6e-4, final_lr=1e-4, matching_weight=0.5, matching_strides=(4, 8),
-                          w_scales=(0.32, 0.08, 0.02, 0.01, 0.005), calibration_pairs=4, heldout_pairs=16)
+                          w_scales=(0.32, 0.08, 0.02, 0.01, 0.005), calibration_pairs=4, heldout_pairs=16,
+                          average_epochs=1)
     pool = texture_pool(data, np.random.default_rng(0))
     model = PWCLite()
     out = pretrain_chairs(model, pool, cfg, seed=0, network="pwclite", heldout=heldout_pairs(cfg, 0, pool),
@@ -135,7 +136,7 @@ def test_phase_b_lr_falls_along_a_cosine_from_lr_to_final_lr():
                       image_crops=0)
     kw = {"data": data, "batch_size": 2, "steps_per_epoch": 10, "feature_epochs": 1, "feature_lr": 1e-3,
           "epochs": 3, "matching_weight": 0.5, "matching_strides": (4,), "w_scales": (1.0,),
-          "calibration_pairs": 2, "heldout_pairs": 2}
+          "calibration_pairs": 2, "heldout_pairs": 2, "average_epochs": 1}
     cfg = BootstrapConfig(lr=3e-4, final_lr=3e-5, **kw)
     lrs = [cfg.phase_b_lr(i) for i in range(30)]
     assert lrs[0] == pytest.approx(3e-4) and lrs[-1] == pytest.approx(3e-5)
@@ -145,3 +146,52 @@ def test_phase_b_lr_falls_along_a_cosine_from_lr_to_final_lr():
     assert BootstrapConfig(lr=3e-4, final_lr=3e-4, **kw).phase_b_lr(7) == pytest.approx(3e-4)
     with pytest.raises(ValueError, match="final_lr"):
         BootstrapConfig(lr=3e-4, final_lr=1e-3, **kw)
+    with pytest.raises(ValueError, match="average_epochs"):
+        BootstrapConfig(lr=3e-4, final_lr=3e-5, **{**kw, "average_epochs": 4})
+
+
+def test_the_kept_weights_are_the_mean_of_the_last_epochs_and_survive_a_resume(tmp_path):
+    """average_epochs = 2: the network left behind is the mean of phase B's last two epoch ends (read from
+    each epoch's state), and a run broken between those two epochs resumes to the same mean, bit for bit."""
+    data = ChairsSpec(height=64, width=64, max_shift=4, small_share=0.25, rotation_deg=0, scale=0.0,
+                      min_shapes=1, max_shapes=1, min_size=0.2, max_size=0.4, supersample=1, textures=2,
+                      image_crops=0)
+    cfg = BootstrapConfig(data=data, batch_size=2, steps_per_epoch=2, feature_epochs=1, feature_lr=1e-3,
+                          epochs=3, lr=3e-4, final_lr=3e-5, matching_weight=0.5, matching_strides=(4,),
+                          w_scales=(0.32, 0.08, 0.02, 0.01, 0.005), calibration_pairs=2, heldout_pairs=2,
+                          average_epochs=2)
+    pool = texture_pool(data, np.random.default_rng(0))
+    test = heldout_pairs(cfg, 0, pool)
+    torch.set_num_threads(1)
+    ends = {}
+
+    def keep(model):
+        def on_epoch(row):
+            ends[row["epoch"]] = {k: v.clone() for k, v in model.state_dict().items()}
+        return on_epoch
+
+    torch.manual_seed(0)
+    whole = PWCLite()
+    out = pretrain_chairs(whole, pool, cfg, 0, "pwclite", test, tmp_path / "a", on_epoch=keep(whole),
+                          progress=False)
+    assert out["averaged_epochs"] == 2 and sorted(ends) == [1, 2, 3, 4]
+    for name, value in whole.state_dict().items():
+        torch.testing.assert_close(value, (ends[3][name] + ends[4][name]) / 2, rtol=1e-6, atol=1e-7)
+    assert not torch.equal(whole.state_dict()["flow_estimators.conv1.0.weight"],
+                           ends[4]["flow_estimators.conv1.0.weight"])
+
+    class Crash(RuntimeError):
+        pass
+
+    def crash_after_3(row):
+        if row["epoch"] == 3:
+            raise Crash
+
+    torch.manual_seed(0)
+    with pytest.raises(Crash):
+        pretrain_chairs(PWCLite(), pool, cfg, 0, "pwclite", test, tmp_path / "b", on_epoch=crash_after_3,
+                        progress=False)
+    resumed = PWCLite()
+    again = pretrain_chairs(resumed, pool, cfg, 0, "pwclite", test, tmp_path / "b", progress=False)
+    assert again["resumed_from"] == 3 and again["averaged_epochs"] == 2
+    assert all(torch.equal(v, resumed.state_dict()[k]) for k, v in whole.state_dict().items())

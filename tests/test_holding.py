@@ -211,7 +211,7 @@ def test_flow_pretrain_killed_with_9_resumes_to_the_same_weights(tmp_path):
     from f2depth.flow.checkpoint import load_flow_model
 
     env = {**os.environ, "F2DEPTH_MLFLOW": "0", "OMP_NUM_THREADS": "1"}
-    chairs = {**tiny_chairs(), "feature_epochs": 1, "epochs": 3, "steps_per_epoch": 3}
+    chairs = {**tiny_chairs(), "feature_epochs": 1, "epochs": 3, "steps_per_epoch": 3, "average_epochs": 2}
     weights = {}
     for name in ("killed", "whole"):
         root = tmp_path / name

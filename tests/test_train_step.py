@@ -158,6 +158,56 @@ def test_train_step_updates_depth_not_teacher(tiny):
     assert not teacher.net.training
 
 
+class CountingPWCLite(PWCLite):
+    """PWC-Lite that counts the pairs its forward pass sees."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.pairs_run = 0
+
+    def forward(self, img1, img2, with_backward=True):
+        self.pairs_run += img1.shape[0]
+        return super().forward(img1, img2, with_backward)
+
+
+def test_teacher_memo_serves_seen_pairs_without_the_network_and_equals_a_fresh_run():
+    torch.manual_seed(3)
+    pairs = [(torch.rand(3, 64, 64), torch.rand(3, 64, 64)) for _ in range(5)]
+
+    def batch(*ids):
+        return torch.stack([pairs[i][0] for i in ids]), torch.stack([pairs[i][1] for i in ids])
+
+    torch.manual_seed(4)
+    net = CountingPWCLite()
+    plain, memo = FlowTeacher(net), FlowTeacher(net, memo_mb=64)
+    first = memo(*batch(0, 1, 2))
+    assert net.pairs_run == 3 and memo.memo_hits == 0 and len(memo.memo) == 3
+    mixed = memo(*batch(2, 3, 0))  # two seen pairs, one new: the network runs on the new one only
+    assert net.pairs_run == 4 and memo.memo_hits == 2
+    again = memo(*batch(3, 1))
+    assert net.pairs_run == 4 and memo.memo_hits == 4
+    ref = plain(*batch(2, 3, 0))
+    for got, want in ((mixed, ref), (again, plain(*batch(3, 1)))):
+        assert got.flow.shape == want.flow.shape and len(got.feats_tgt) == len(want.feats_tgt) == 6
+        torch.testing.assert_close(got.flow, want.flow, rtol=1e-4, atol=1e-4)
+        for a, b in zip(got.feats_tgt + got.feats_src, want.feats_tgt + want.feats_src):
+            torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-4)
+    torch.testing.assert_close(mixed.flow[2], first.flow[0], rtol=0, atol=0)  # pair 0 from the memo
+    # a changed image is a new pair, never served an old entry
+    altered = (pairs[0][0].clone(), pairs[0][1])
+    altered[0][0, 0, 0] += 0.5
+    before = net.pairs_run
+    memo(altered[0][None], altered[1][None])
+    assert net.pairs_run == before + 1
+    # the budget holds: an entry that does not fit is computed but not kept
+    entry_mb = memo.memo_used / len(memo.memo) / 2**20
+    small = FlowTeacher(net, memo_mb=1.5 * entry_mb)
+    small(*batch(0, 1, 2))
+    assert len(small.memo) == 1 and small.memo_used <= small.memo_bytes
+    small(*batch(0, 1, 2))
+    assert small.memo_hits == 1
+
+
 def test_nan_guard_names_the_term_and_leaves_weights(tiny):
     torch.manual_seed(3)
     model = DepthModel(DepthModelConfig(64, 64))

@@ -99,7 +99,7 @@ def write_params(root: Path, prepared: Path, mat: Path, splits: Path, flow: Path
           "imagenet_weights": None, "augment": True, "seeds": [0], "workers": 0, "val_max_images": 2,
           "val_every": 1, "state_every": 1, "resume_dir": str(root / "ckpt"), "amp": False,
           "init_depth": None,
-          "pose_prior": "none", "sync_bn": True, "diagnostic_tuples": 64}
+          "pose_prior": "none", "sync_bn": True, "diagnostic_tuples": 64, "teacher_memo_mb": 64}
     td.update(train)
     flow_s = str(flow) if flow else None
     params = {

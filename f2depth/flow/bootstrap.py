@@ -14,7 +14,8 @@ on one image-independent field. The recipe:
    towards the true displacement), lr ``feature_lr``;
 3. **phase B** (``epochs``): the whole network, multi-scale EPE (:func:`multiscale_epe`) +
    ``matching_weight`` × the matching loss, lr falling along a cosine from ``lr`` to ``final_lr``
-   (:meth:`BootstrapConfig.phase_b_lr`).
+   (:meth:`BootstrapConfig.phase_b_lr`); the network kept is the mean of the weights at the ends of
+   phase B's last ``average_epochs`` epochs (f2depth.averaging; 1: the last epoch's weights).
 
 Every epoch is ``steps_per_epoch`` new batches drawn from a generator seeded by (seed, epoch), so a
 resumed run (``<resume_dir>/last.pt``, :mod:`f2depth.epochs`) sees exactly the batches of an unbroken one.
@@ -37,6 +38,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from f2depth.averaging import WeightAverage
 from f2depth.epochs import EpochLoop, epoch_rng
 from f2depth.epochs import fingerprint as hash_settings
 from f2depth.flow.correlation import MAX_DISPLACEMENT, correlation
@@ -68,6 +70,7 @@ class BootstrapConfig:
     w_scales: tuple[float, ...]                          # multi-scale EPE weight per level, finest first
     calibration_pairs: int = field(metadata={"min": 2})  # batch of the data-dependent init
     heldout_pairs: int = field(metadata={"min": 1})      # generated test pairs (own seed), never trained on
+    average_epochs: int = field(metadata={"min": 1})     # the weights kept: mean over phase B's last N epochs
     weight_decay: float = field(default=0.0, metadata={"fixed": True})
 
     def __post_init__(self) -> None:
@@ -77,6 +80,9 @@ class BootstrapConfig:
             raise ValueError(f"final_lr = {self.final_lr} is above lr = {self.lr}; phase B's lr only falls")
         if any(s < 1 for s in self.matching_strides):
             raise ValueError(f"matching_strides = {list(self.matching_strides)} must be pyramid strides >= 1")
+        if self.average_epochs > self.epochs:
+            raise ValueError(f"average_epochs = {self.average_epochs} is more than phase B's epochs = "
+                             f"{self.epochs}; the mean is taken over phase B's last epochs")
 
     @property
     def total_epochs(self) -> int:
@@ -313,15 +319,18 @@ def pretrain_chairs(model: FlowNetwork, pool: torch.Tensor, cfg: BootstrapConfig
                     device: str = "cpu",
                     on_epoch: Callable[[dict[str, Any]], None] | None = None,
                     progress: bool = True) -> dict[str, Any]:
-    """Train ``model`` in place (module docstring) → ``{"epochs_run", "resumed_from", "seconds", "history",
-    "start", "after_features", "final"}`` (the last three: :func:`heldout_scores` on the generated
-    ``heldout`` pairs, :func:`heldout_pairs`, after the init, after phase A and at the end).
+    """Train ``model`` in place (module docstring) and leave it holding the mean of the last
+    ``average_epochs`` epochs' weights → ``{"epochs_run", "resumed_from", "averaged_epochs", "seconds",
+    "history", "start", "after_features", "last_epoch", "final"}`` (the last four: :func:`heldout_scores` on
+    the generated ``heldout`` pairs, :func:`heldout_pairs`, after the init, after phase A, with the last
+    epoch's weights and with the mean kept).
     ``on_epoch(row)`` as in :func:`f2depth.flow.pretrain.pretrain`."""
     model.to(device).train()
     opt_a = make_optimizer(model.feature_module(), _Lr(cfg.feature_lr, cfg.weight_decay))
     opt_b = make_optimizer(model, _Lr(cfg.lr, cfg.weight_decay))
+    average = WeightAverage()
     loop = EpochLoop("flow_pretrain", cfg.total_epochs, {"model": model, "features_optimizer": opt_a,
-                                                         "optimizer": opt_b},
+                                                         "optimizer": opt_b, "average": average},
                      Path(resume_dir) / "last.pt" if resume_dir is not None else None,
                      run_fingerprint(cfg, seed, pool, network), progress=progress)
     test = tuple(heldout)
@@ -365,14 +374,19 @@ def pretrain_chairs(model: FlowNetwork, pool: torch.Tensor, cfg: BootstrapConfig
         if row["epoch"] == cfg.feature_epochs:
             recalibrate_decoder(model, calibration)
             scores["after_features"] = heldout_scores(model, test, cfg, device)
+        if row["epoch"] > cfg.total_epochs - cfg.average_epochs:
+            average.add(model)
         return out
 
     t0 = time.perf_counter()
     loop.run_epochs(batches, step, end_epoch=end_epoch,
                     on_epoch=on_epoch)
     model.eval()
+    scores["last_epoch"] = heldout_scores(model, test, cfg, device)
+    average.copy_to(model)
     scores["final"] = heldout_scores(model, test, cfg, device)
     return {"epochs_run": cfg.total_epochs - loop.resumed_from, "resumed_from": loop.resumed_from,
+            "averaged_epochs": average.count,
             "seconds": round(time.perf_counter() - t0, 1), "history": loop.history, **scores}
 
 

@@ -110,7 +110,8 @@ def fit(
     ctx = ctx or DistContext()
     t_start = time.perf_counter()
     ddp = wrap_model(model, ctx, sync_bn=config.sync_bn)
-    optimizer = torch.optim.Adam(ddp.parameters(), lr=config.schedule.lr(0))
+    # fused: one kernel per step instead of a dozen passes over 27 M parameters (same update, other rounding)
+    optimizer = torch.optim.Adam(ddp.parameters(), lr=config.schedule.lr(0), fused=True)
     scaler = grad_scaler(ctx.device, step_config.amp)
     parts = {"model": unwrap(ddp), "optimizer": optimizer, "scaler": scaler, "rng": RNGState()}
     loop = EpochLoop("train_depth", config.epochs, parts, checkpoint, fingerprint, main=ctx.is_main,

@@ -125,7 +125,7 @@ def train_variant(
                            priors=priors)
     if problem := batch_problem(len(dataset), s.batch_size, ctx.world_size):  # before any model is built
         raise DataError(Path(s.prepared) / "tuples.csv", *problem)
-    teacher = FlowTeacher.load(s.flow_model, ctx.device) if s.flow_model else None
+    teacher = FlowTeacher.load(s.flow_model, ctx.device, s.teacher_memo_mb) if s.flow_model else None
     if not s.nyu_labeled and not prepared.val_tuples:
         raise DataError(Path(s.prepared) / VAL_TUPLES, "no validation set: data.nyu_labeled is null and the "
                         "prepared set holds no held-out tuples", "set prepare.val_share (e.g. 0.2) and re-run"

@@ -59,6 +59,7 @@ class TrainSettings:
     state_every: int = field(metadata={"min": 1})
     diagnostic_tuples: int = field(metadata={"min": 0})
     sync_bn: bool
+    teacher_memo_mb: float = field(metadata={"min": 0})  # f2depth.train.teacher: the frozen network's memo
     resume_dir: str
     # ---- resolved for the variant
     variant: str
