@@ -77,6 +77,7 @@ TINY: dict[str, object] = {
     "flow_pretrain.chairs.steps_per_epoch": 2,
     "flow_pretrain.chairs.feature_epochs": 1,
     "flow_pretrain.chairs.epochs": 1,
+    "flow_pretrain.chairs.average_epochs": 1,
     "flow_pretrain.chairs.calibration_pairs": 2,
     "flow_pretrain.chairs.heldout_pairs": 2,
     "flow_finetune.epochs": 2,  # the kill after the first epoch needs a second

@@ -17,7 +17,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     # primitives: geometry, cameras, parameters, files, tracking, superpixels
     ("numbers", "io", "params", "precision", "workers", "tracking", "colour", "geometry", "camera",
      "superpixels", "signals"),
-    ("epochs", "profile"),  # the one training-loop skeleton, profiling
+    ("epochs", "profile", "averaging"),  # the one training-loop skeleton, profiling, weight averaging
     ("data",),  # on-disk formats, loaders, the typed samples, the prepare stage
     ("synth",),  # the embedded synthetic world (and the flow teacher's generated pairs)
     ("keypoints", "poses"),  # DSO's selector; multi-view poses

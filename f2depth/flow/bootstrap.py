@@ -82,7 +82,7 @@ class BootstrapConfig:
             raise ValueError(f"matching_strides = {list(self.matching_strides)} must be pyramid strides >= 1")
         if self.average_epochs > self.epochs:
             raise ValueError(f"average_epochs = {self.average_epochs} is more than phase B's epochs = "
-                             f"{self.epochs}; the mean is taken over phase B's last epochs")
+                             f"{self.epochs}; set it to at most {self.epochs} (1: the last epoch's weights)")
 
     @property
     def total_epochs(self) -> int:
