@@ -33,6 +33,7 @@ from f2depth.keypoints import save_keypoints
 from f2depth.losses import total_loss
 from f2depth.superpixels import scaled_min_area
 from f2depth.train.data import DataConfig, TupleDataset
+from f2depth.train.loop import depth_optimizer
 from f2depth.train.settings import loss_weights
 from f2depth.train.step import (
     StepConfig,
@@ -110,7 +111,7 @@ def depth_step(hw: tuple[int, int]) -> Iterator[Callable[[int], dict[str, float]
         torch.manual_seed(0)
         model = DepthModel(DepthModelConfig(*hw)).train()
         teacher = FlowTeacher(PWCLite())
-        opt = torch.optim.Adam(model.parameters(), lr=1e-4, fused=True)  # as f2depth.train.loop
+        opt = depth_optimizer(model.parameters(), 1e-4)
         cfg = StepConfig(loss_weights(P.load(PARAMS)), min_area=scaled_min_area(*hw))
         yield lambda k: time_step(ds, model, teacher, opt, cfg, k)
 

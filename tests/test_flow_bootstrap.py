@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import torch
 import torch.nn.functional as F
+import train_fakes
 
 from f2depth.flow import PWCLite
 from f2depth.flow.bootstrap import (
@@ -180,17 +181,10 @@ def test_the_kept_weights_are_the_mean_of_the_last_epochs_and_survive_a_resume(t
     assert not torch.equal(whole.state_dict()["flow_estimators.conv1.0.weight"],
                            ends[4]["flow_estimators.conv1.0.weight"])
 
-    class Crash(RuntimeError):
-        pass
-
-    def crash_after_3(row):
-        if row["epoch"] == 3:
-            raise Crash
-
     torch.manual_seed(0)
-    with pytest.raises(Crash):
-        pretrain_chairs(PWCLite(), pool, cfg, 0, "pwclite", test, tmp_path / "b", on_epoch=crash_after_3,
-                        progress=False)
+    with pytest.raises(train_fakes.Crash):
+        pretrain_chairs(PWCLite(), pool, cfg, 0, "pwclite", test, tmp_path / "b",
+                        on_epoch=train_fakes.crash_after(3), progress=False)
     resumed = PWCLite()
     again = pretrain_chairs(resumed, pool, cfg, 0, "pwclite", test, tmp_path / "b", progress=False)
     assert again["resumed_from"] == 3 and again["averaged_epochs"] == 2

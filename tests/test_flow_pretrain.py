@@ -13,6 +13,7 @@ import cv2
 import numpy as np
 import pytest
 import torch
+import train_fakes
 import yaml
 
 from f2depth.data.sintel import list_pairs, write_flo
@@ -62,17 +63,10 @@ def test_pretrain_runs_both_phases_and_resumes_identically(tmp_path):
     assert info["epochs_run"] == 2 and [h["census"] for h in info["history"]] == [0.0, 1.0]
     assert all(math.isfinite(v) for h in info["history"] for v in h.values())
 
-    class Crash(RuntimeError):
-        pass
-
-    def crash(row):
-        if row["epoch"] == 1:
-            raise Crash
-
     torch.manual_seed(0)
     model = PWCLite()
-    with pytest.raises(Crash):
-        pretrain(model, pairs, TINY, tmp_path / "r2", on_epoch=crash, progress=False)
+    with pytest.raises(train_fakes.Crash):
+        pretrain(model, pairs, TINY, tmp_path / "r2", on_epoch=train_fakes.crash_after(1), progress=False)
     assert (tmp_path / "r2" / "last.pt").is_file()
     resumed = PWCLite()  # different initial weights: they come from the resume file
     info = pretrain(resumed, pairs, TINY, tmp_path / "r2", progress=False)

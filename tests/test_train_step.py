@@ -208,6 +208,15 @@ def test_teacher_memo_serves_seen_pairs_without_the_network_and_equals_a_fresh_r
     assert small.memo_hits == 1
 
 
+def test_teacher_memo_keeps_a_pair_met_twice_in_one_batch_once():
+    torch.manual_seed(5)
+    img1, img2 = torch.rand(3, 64, 64), torch.rand(3, 64, 64)
+    teacher = FlowTeacher(PWCLite(), memo_mb=64)
+    out = teacher(torch.stack([img1, img1]), torch.stack([img2, img2]))
+    assert len(teacher.memo) == 1 and teacher.memo_used == next(iter(teacher.memo.values())).nbytes
+    torch.testing.assert_close(out.flow[0], out.flow[1])
+
+
 def test_nan_guard_names_the_term_and_leaves_weights(tiny):
     torch.manual_seed(3)
     model = DepthModel(DepthModelConfig(64, 64))

@@ -118,3 +118,15 @@ def write_params(root: Path, prepared: Path, mat: Path, splits: Path, flow: Path
     path = root / "params.yaml"
     path.write_text(yaml.safe_dump(params, sort_keys=False))
     return path
+
+
+class Crash(RuntimeError):
+    """Stands in for the process dying right after an epoch's resume state is saved."""
+
+
+def crash_after(epoch: int):
+    """An ``on_epoch`` hook that raises :class:`Crash` once epoch ``epoch`` is saved."""
+    def on_epoch(row: dict) -> None:
+        if row["epoch"] == epoch:
+            raise Crash
+    return on_epoch

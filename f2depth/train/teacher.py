@@ -77,27 +77,27 @@ class FlowTeacher:
         """target, source (B,3,H,W) RGB in [0, 1] → TeacherOutput."""
         if self.memo_bytes <= 0:
             return self._run(target, source, features)
-        keys = [_pair_key(t, s, features) for t, s in zip(target, source)]
+        keys = _pair_keys(target, source, features)
         missing = [i for i, key in enumerate(keys) if key not in self.memo]
-        fresh: dict[bytes, _Entry] = {}
-        if missing:
-            index = torch.tensor(missing, device=target.device)
-            out = self._run(target[index], source[index], features)
-            for j, i in enumerate(missing):
-                entry = _Entry(out.flow[j].clone(), [f[j].clone() for f in out.feats_tgt],
-                               [f[j].clone() for f in out.feats_src])
-                fresh[keys[i]] = entry
-                if self.memo_used + entry.nbytes <= self.memo_bytes:
-                    self.memo[keys[i]] = entry
-                    self.memo_used += entry.nbytes
-            if len(missing) == len(keys):
-                return out
-        entries = [fresh.get(key) or self.memo[key] for key in keys]
         self.memo_hits += len(keys) - len(missing)
-        levels = len(entries[0].feats_tgt)
-        return TeacherOutput(torch.stack([e.flow for e in entries]),
-                             [torch.stack([e.feats_tgt[k] for e in entries]) for k in range(levels)],
-                             [torch.stack([e.feats_src[k] for e in entries]) for k in range(levels)])
+        if not missing:
+            return _stack([self.memo[key] for key in keys])
+        whole = len(missing) == len(keys)
+        out = self._run(target if whole else target[missing], source if whole else source[missing], features)
+        ran = {i: _Entry(out.flow[j], [f[j] for f in out.feats_tgt], [f[j] for f in out.feats_src])
+               for j, i in enumerate(missing)}
+        for i, entry in ran.items():
+            self._keep(keys[i], entry)
+        if whole:
+            return out
+        return _stack([ran[i] if i in ran else self.memo[key] for i, key in enumerate(keys)])
+
+    def _keep(self, key: bytes, entry: _Entry) -> None:
+        """Memoise a copy of ``entry`` (views of a batch) when the budget has room and the key is new."""
+        if key not in self.memo and self.memo_used + entry.nbytes <= self.memo_bytes:
+            self.memo[key] = _Entry(entry.flow.clone(), [f.clone() for f in entry.feats_tgt],
+                                    [f.clone() for f in entry.feats_src])
+            self.memo_used += entry.nbytes
 
     def _run(self, target: torch.Tensor, source: torch.Tensor, features: bool) -> TeacherOutput:
         self.net.eval()
@@ -125,11 +125,23 @@ class _Entry:
         return sum(t.numel() * t.element_size() for t in (self.flow, *self.feats_tgt, *self.feats_src))
 
 
-def _pair_key(target: torch.Tensor, source: torch.Tensor, features: bool) -> bytes:
-    """A digest of one pair's two images (3,H,W) — dtype, shape and bytes — and whether features are kept."""
-    h = hashlib.blake2b(digest_size=16)
-    for image in (target, source):
-        h.update(f"{image.dtype}{tuple(image.shape)}".encode())
-        h.update(image.detach().contiguous().cpu().view(torch.uint8).numpy().tobytes())
-    h.update(b"f" if features else b"-")
-    return h.digest()
+def _stack(entries: list[_Entry]) -> TeacherOutput:
+    """One batch of memo entries, in order."""
+    levels = range(len(entries[0].feats_tgt))
+    return TeacherOutput(torch.stack([e.flow for e in entries]),
+                         [torch.stack([e.feats_tgt[k] for e in entries]) for k in levels],
+                         [torch.stack([e.feats_src[k] for e in entries]) for k in levels])
+
+
+def _pair_keys(target: torch.Tensor, source: torch.Tensor, features: bool) -> list[bytes]:
+    """A digest per pair of the batch ``target``, ``source`` (B,3,H,W): the images' dtype, shape and bytes and
+    whether features are kept. One host copy per batch (none on a CPU)."""
+    target, source = (x.detach().contiguous().cpu() for x in (target, source))
+    head = f"{target.dtype}{tuple(target.shape[1:])}{source.dtype}{tuple(source.shape[1:])}{features}"
+    keys = []
+    for t, s in zip(target, source):
+        h = hashlib.blake2b(head.encode(), digest_size=16)
+        h.update(t.view(torch.uint8).numpy())
+        h.update(s.view(torch.uint8).numpy())
+        keys.append(h.digest())
+    return keys
