@@ -11,6 +11,7 @@ import torch
 import torch.nn.functional as F
 import train_fakes
 
+from f2depth import precision
 from f2depth.flow import PWCLite
 from f2depth.flow.bootstrap import (
     BootstrapConfig,
@@ -118,7 +119,7 @@ def test_a_short_bootstrap_learns_flow_that_follows_the_images():
     cfg = BootstrapConfig(data=data, batch_size=8, steps_per_epoch=50, feature_epochs=2, feature_lr=2e-3,
                           epochs=4, lr=6e-4, final_lr=1e-4, matching_weight=0.5, matching_strides=(4, 8),
                           w_scales=(0.32, 0.08, 0.02, 0.01, 0.005), calibration_pairs=4, heldout_pairs=16,
-                          average_epochs=1)
+                          average_epochs=1, amp=False)
     pool = texture_pool(data, np.random.default_rng(0))
     model = PWCLite()
     out = pretrain_chairs(model, pool, cfg, seed=0, network="pwclite", heldout=heldout_pairs(cfg, 0, pool),
@@ -137,7 +138,7 @@ def test_phase_b_lr_falls_along_a_cosine_from_lr_to_final_lr():
                       image_crops=0)
     kw = {"data": data, "batch_size": 2, "steps_per_epoch": 10, "feature_epochs": 1, "feature_lr": 1e-3,
           "epochs": 3, "matching_weight": 0.5, "matching_strides": (4,), "w_scales": (1.0,),
-          "calibration_pairs": 2, "heldout_pairs": 2, "average_epochs": 1}
+          "calibration_pairs": 2, "heldout_pairs": 2, "average_epochs": 1, "amp": False}
     cfg = BootstrapConfig(lr=3e-4, final_lr=3e-5, **kw)
     lrs = [cfg.phase_b_lr(i) for i in range(30)]
     assert lrs[0] == pytest.approx(3e-4) and lrs[-1] == pytest.approx(3e-5)
@@ -160,7 +161,7 @@ def test_the_kept_weights_are_the_mean_of_the_last_epochs_and_survive_a_resume(t
     cfg = BootstrapConfig(data=data, batch_size=2, steps_per_epoch=2, feature_epochs=1, feature_lr=1e-3,
                           epochs=3, lr=3e-4, final_lr=3e-5, matching_weight=0.5, matching_strides=(4,),
                           w_scales=(0.32, 0.08, 0.02, 0.01, 0.005), calibration_pairs=2, heldout_pairs=2,
-                          average_epochs=2)
+                          average_epochs=2, amp=False)
     pool = texture_pool(data, np.random.default_rng(0))
     test = heldout_pairs(cfg, 0, pool)
     torch.set_num_threads(1)
@@ -189,3 +190,33 @@ def test_the_kept_weights_are_the_mean_of_the_last_epochs_and_survive_a_resume(t
     again = pretrain_chairs(resumed, pool, cfg, 0, "pwclite", test, tmp_path / "b", progress=False)
     assert again["resumed_from"] == 3 and again["averaged_epochs"] == 2
     assert all(torch.equal(v, resumed.state_dict()[k]) for k, v in whole.state_dict().items())
+
+
+def test_amp_runs_the_network_in_bfloat16_and_keeps_the_losses_float32(monkeypatch):
+    """flow_pretrain.chairs.amp (the CPU default): phase A's pyramid and phase B's whole network run under
+    bfloat16 autocast while the matching loss and the multi-scale EPE are computed in float32; each epoch's
+    training loss stays within a few per cent of the float32 run's from the same start, and the weights
+    stay float32."""
+    monkeypatch.setattr(precision, "bfloat16_units", lambda: True)  # autocast acts on any CPU
+    data = ChairsSpec(height=64, width=64, max_shift=4, small_share=0.25, rotation_deg=0, scale=0.0,
+                      min_shapes=1, max_shapes=2, min_size=0.2, max_size=0.4, supersample=1, textures=3,
+                      image_crops=0)
+    pool = texture_pool(data, np.random.default_rng(0))
+    runs, seen = {}, {}
+    torch.set_num_threads(1)
+    for amp in (False, True):
+        cfg = BootstrapConfig(data=data, batch_size=2, steps_per_epoch=2, feature_epochs=1, feature_lr=1e-3,
+                              epochs=1, lr=3e-4, final_lr=3e-5, matching_weight=0.5, matching_strides=(4,),
+                              w_scales=(0.32, 0.08, 0.02, 0.01, 0.005), calibration_pairs=2, heldout_pairs=2,
+                              average_epochs=1, amp=amp)
+        torch.manual_seed(0)
+        model = PWCLite()
+        dtypes = seen.setdefault(amp, set())
+        model.flow_estimators.conv1.register_forward_hook(lambda _m, _i, y, d=dtypes: d.add(y.dtype))
+        model.feature_pyramid_extractor.register_forward_hook(lambda _m, _i, y, d=dtypes: d.add(y[0].dtype))
+        runs[amp] = pretrain_chairs(model, pool, cfg, 0, "pwclite", heldout_pairs(cfg, 0, pool),
+                                    progress=False)
+        assert all(p.dtype == torch.float32 for p in model.parameters())
+    assert seen[False] == {torch.float32} and torch.bfloat16 in seen[True]
+    for fp32, amp in zip(runs[False]["history"], runs[True]["history"]):
+        assert amp["loss"] == pytest.approx(fp32["loss"], rel=0.05) and amp["loss"] != fp32["loss"]

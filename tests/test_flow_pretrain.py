@@ -160,7 +160,8 @@ def tiny_chairs() -> dict:
             "batch_size": 2, "steps_per_epoch": 2, "feature_epochs": 1, "feature_lr": 2e-3, "epochs": 1,
             "lr": 3e-4, "final_lr": 1e-4, "matching_weight": 0.5, "matching_strides": [4, 8],
             "w_scales": [0.32, 0.08, 0.02, 0.01, 0.005],
-            "calibration_pairs": 2, "heldout_pairs": 3, "average_epochs": 1}
+            "calibration_pairs": 2, "heldout_pairs": 3, "average_epochs": 1,
+            "amp": False}
 
 
 def run_stage(tmp_path: Path, monkeypatch, **section) -> dict:

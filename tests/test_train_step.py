@@ -11,6 +11,7 @@ import torch
 import train_fakes
 from torch.utils.data import default_collate
 
+from f2depth import precision
 from f2depth.depth import DepthModel, DepthModelConfig
 from f2depth.flow import PWCLite
 from f2depth.geometry import in_view_mask, relative_pose, rigid_flow, warp
@@ -236,10 +237,11 @@ def test_nan_guard_names_the_term_and_leaves_weights(tiny):
     assert len(seen) == 1 and seen[0].term == "rigid"  # the DDP hook sees the error before anything else
 
 
-def test_mixed_precision_step_gives_the_fp32_loss(tiny):
+def test_mixed_precision_step_gives_the_fp32_loss(tiny, monkeypatch):
     """train_depth.amp: one step under autocast (bfloat16 on a CPU; float16 + GradScaler on CUDA) gives the
     float32 step's loss to 2 % per term (bfloat16 keeps 8 bits of mantissa: 0.4 % per rounding), updates
-    the weights, and the networks really ran in reduced precision."""
+    the weights, and the networks really ran in reduced precision (on any CPU: bfloat16 units assumed)."""
+    monkeypatch.setattr(precision, "bfloat16_units", lambda: True)
     results, dtypes = {}, {}
     for amp in (False, True):
         torch.manual_seed(5)
@@ -259,6 +261,20 @@ def test_mixed_precision_step_gives_the_fp32_loss(tiny):
     for term in ("ph", "smooth", "planar", "rigid", "feature", "total"):
         assert results[True][term] == pytest.approx(results[False][term], rel=0.02), term
     assert results[True]["total"] != results[False]["total"]  # autocast did change the arithmetic
+
+
+def test_amp_on_a_cpu_without_bfloat16_units_runs_float32_and_says_so(monkeypatch):
+    """Without bfloat16 units oneDNN emulates bfloat16 (slower than float32): autocast stays off, one warning
+    names the key."""
+    conv = torch.nn.Conv2d(3, 4, 3)
+    x = torch.rand(1, 3, 8, 8)
+    with precision.autocast("cpu", True):
+        assert conv(x).dtype == (torch.bfloat16 if precision.bfloat16_units() else torch.float32)
+    monkeypatch.setattr(precision, "bfloat16_units", lambda: False)
+    with pytest.warns(UserWarning, match="no bfloat16 units.*amp: false"), precision.autocast("cpu", True):
+        assert conv(x).dtype == torch.float32
+    with precision.autocast("cpu", False):
+        assert conv(x).dtype == torch.float32
 
 
 def test_compute_loss_matches_weighted_terms(tiny):

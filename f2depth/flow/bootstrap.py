@@ -44,7 +44,7 @@ from f2depth.epochs import fingerprint as hash_settings
 from f2depth.flow.correlation import MAX_DISPLACEMENT, correlation
 from f2depth.flow.evaluation import EPEAccumulator, endpoint_error
 from f2depth.flow.network import FlowNetwork, make_optimizer, msra_init
-from f2depth.precision import backward_and_step
+from f2depth.precision import autocast, backward_and_step
 from f2depth.synth.chairs import ChairsSpec, render_pairs
 
 HISTORY_COLUMNS = ("epoch", "phase", "loss", "epe", "matching", "top1_s4", "top1_s8", "steps",
@@ -71,6 +71,7 @@ class BootstrapConfig:
     calibration_pairs: int = field(metadata={"min": 2})  # batch of the data-dependent init
     heldout_pairs: int = field(metadata={"min": 1})      # generated test pairs (own seed), never trained on
     average_epochs: int = field(metadata={"min": 1})     # the weights kept: mean over phase B's last N epochs
+    amp: bool                                            # network passes under autocast (f2depth.precision)
     weight_decay: float = field(default=0.0, metadata={"fixed": True})
 
     def __post_init__(self) -> None:
@@ -348,18 +349,19 @@ def pretrain_chairs(model: FlowNetwork, pool: torch.Tensor, cfg: BootstrapConfig
         return _Batches(cfg, pool, epoch_rng(seed, epoch))
 
     def step(batch: tuple[torch.Tensor, ...]) -> dict[str, float]:
+        nonlocal b_step
         img1, img2, gt, occ = (t.to(device) for t in batch)
-        match, stats = matching_loss(model.features(img1), model.features(img2), gt, occ,
-                                     cfg.matching_strides)
+        with autocast(device, cfg.amp):  # the network's passes; the losses below in float32
+            feats1, feats2 = model.features(img1), model.features(img2)
+            flows = model(img1, img2, with_backward=False)[0] if phase == "all" else []
+        match, stats = matching_loss(feats1, feats2, gt, occ, cfg.matching_strides)
         if phase == "features":
             loss, optim = match, opt_a
         else:
-            nonlocal b_step
             for group in opt_b.param_groups:
                 group["lr"] = cfg.phase_b_lr(b_step)
             b_step += 1
-            flows, _ = model(img1, img2, with_backward=False)
-            epe, levels = multiscale_epe(flows, gt, cfg.w_scales)
+            epe, levels = multiscale_epe([f.float() for f in flows], gt, cfg.w_scales)
             loss, optim = epe + cfg.matching_weight * match, opt_b
             stats["epe"] = levels[0]
         if not torch.isfinite(loss):
