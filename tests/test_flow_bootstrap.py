@@ -28,6 +28,19 @@ from f2depth.flow.network import msra_init
 from f2depth.synth.chairs import ChairsSpec, texture_pool
 
 
+def small_config(data_changes: dict | None = None, **changes) -> BootstrapConfig:
+    """A bootstrap that runs in seconds: 64×64 pairs of one or two still shapes, batch 2, one phase-A and
+    three phase-B epochs of 2 steps, float32; ``changes`` (and ``data_changes``) override keys."""
+    data = ChairsSpec(**{"height": 64, "width": 64, "max_shift": 4, "small_share": 0.25, "rotation_deg": 0,
+                         "scale": 0.0, "min_shapes": 1, "max_shapes": 1, "min_size": 0.2, "max_size": 0.4,
+                         "supersample": 1, "textures": 2, "image_crops": 0, **(data_changes or {})})
+    return BootstrapConfig(**{"data": data, "batch_size": 2, "steps_per_epoch": 2, "feature_epochs": 1,
+                              "feature_lr": 1e-3, "epochs": 3, "lr": 3e-4, "final_lr": 3e-5,
+                              "matching_weight": 0.5, "matching_strides": (4,),
+                              "w_scales": (0.32, 0.08, 0.02, 0.01, 0.005), "calibration_pairs": 2,
+                              "heldout_pairs": 2, "average_epochs": 1, "amp": False, **changes})
+
+
 def textured_shift(shift: int, generator: torch.Generator, n: int = 2) -> tuple[torch.Tensor, torch.Tensor]:
     """``n`` random textured 64×128 images and the same shifted ``shift`` px right (wrapping)."""
     coarse = torch.rand(n, 3, 32, 64, generator=generator)
@@ -133,36 +146,25 @@ def test_a_short_bootstrap_learns_flow_that_follows_the_images():
 
 
 def test_phase_b_lr_falls_along_a_cosine_from_lr_to_final_lr():
-    data = ChairsSpec(height=64, width=64, max_shift=4, small_share=0.25, rotation_deg=0, scale=0.0,
-                      min_shapes=1, max_shapes=1, min_size=0.2, max_size=0.4, supersample=1, textures=2,
-                      image_crops=0)
-    kw = {"data": data, "batch_size": 2, "steps_per_epoch": 10, "feature_epochs": 1, "feature_lr": 1e-3,
-          "epochs": 3, "matching_weight": 0.5, "matching_strides": (4,), "w_scales": (1.0,),
-          "calibration_pairs": 2, "heldout_pairs": 2, "average_epochs": 1, "amp": False}
-    cfg = BootstrapConfig(lr=3e-4, final_lr=3e-5, **kw)
+    kw = {"steps_per_epoch": 10, "w_scales": (1.0,)}
+    cfg = small_config(lr=3e-4, final_lr=3e-5, **kw)
     lrs = [cfg.phase_b_lr(i) for i in range(30)]
     assert lrs[0] == pytest.approx(3e-4) and lrs[-1] == pytest.approx(3e-5)
     assert lrs[14] == pytest.approx(3e-5 + 0.5 * 2.7e-4 * (1 + np.cos(np.pi * 14 / 29)))
     assert all(a > b for a, b in zip(lrs, lrs[1:]))
     assert cfg.phase_b_lr(100) == pytest.approx(3e-5)  # past the end: stays at final_lr
-    assert BootstrapConfig(lr=3e-4, final_lr=3e-4, **kw).phase_b_lr(7) == pytest.approx(3e-4)
+    assert small_config(lr=3e-4, final_lr=3e-4, **kw).phase_b_lr(7) == pytest.approx(3e-4)
     with pytest.raises(ValueError, match="final_lr"):
-        BootstrapConfig(lr=3e-4, final_lr=1e-3, **kw)
+        small_config(lr=3e-4, final_lr=1e-3, **kw)
     with pytest.raises(ValueError, match="average_epochs"):
-        BootstrapConfig(lr=3e-4, final_lr=3e-5, **{**kw, "average_epochs": 4})
+        small_config(lr=3e-4, final_lr=3e-5, **{**kw, "average_epochs": 4})
 
 
 def test_the_kept_weights_are_the_mean_of_the_last_epochs_and_survive_a_resume(tmp_path):
     """average_epochs = 2: the network left behind is the mean of phase B's last two epoch ends (read from
     each epoch's state), and a run broken between those two epochs resumes to the same mean, bit for bit."""
-    data = ChairsSpec(height=64, width=64, max_shift=4, small_share=0.25, rotation_deg=0, scale=0.0,
-                      min_shapes=1, max_shapes=1, min_size=0.2, max_size=0.4, supersample=1, textures=2,
-                      image_crops=0)
-    cfg = BootstrapConfig(data=data, batch_size=2, steps_per_epoch=2, feature_epochs=1, feature_lr=1e-3,
-                          epochs=3, lr=3e-4, final_lr=3e-5, matching_weight=0.5, matching_strides=(4,),
-                          w_scales=(0.32, 0.08, 0.02, 0.01, 0.005), calibration_pairs=2, heldout_pairs=2,
-                          average_epochs=2, amp=False)
-    pool = texture_pool(data, np.random.default_rng(0))
+    cfg = small_config(average_epochs=2)
+    pool = texture_pool(cfg.data, np.random.default_rng(0))
     test = heldout_pairs(cfg, 0, pool)
     torch.set_num_threads(1)
     ends = {}
@@ -193,22 +195,17 @@ def test_the_kept_weights_are_the_mean_of_the_last_epochs_and_survive_a_resume(t
 
 
 def test_amp_runs_the_network_in_bfloat16_and_keeps_the_losses_float32(monkeypatch):
-    """flow_pretrain.chairs.amp (the CPU default): phase A's pyramid and phase B's whole network run under
-    bfloat16 autocast while the matching loss and the multi-scale EPE are computed in float32; each epoch's
-    training loss stays within a few per cent of the float32 run's from the same start, and the weights
-    stay float32."""
+    """flow_pretrain.chairs.amp (off in the CPU default, docs/flow_pretrain.md): phase A's pyramid and
+    phase B's whole network run under bfloat16 autocast while the matching loss and the multi-scale EPE are
+    computed in float32; each epoch's training loss stays within a few per cent of the float32 run's from
+    the same start, and the weights stay float32."""
     monkeypatch.setattr(precision, "bfloat16_units", lambda: True)  # autocast acts on any CPU
-    data = ChairsSpec(height=64, width=64, max_shift=4, small_share=0.25, rotation_deg=0, scale=0.0,
-                      min_shapes=1, max_shapes=2, min_size=0.2, max_size=0.4, supersample=1, textures=3,
-                      image_crops=0)
-    pool = texture_pool(data, np.random.default_rng(0))
+    shapes = {"max_shapes": 2, "textures": 3}
+    pool = texture_pool(small_config(shapes).data, np.random.default_rng(0))
     runs, seen = {}, {}
     torch.set_num_threads(1)
     for amp in (False, True):
-        cfg = BootstrapConfig(data=data, batch_size=2, steps_per_epoch=2, feature_epochs=1, feature_lr=1e-3,
-                              epochs=1, lr=3e-4, final_lr=3e-5, matching_weight=0.5, matching_strides=(4,),
-                              w_scales=(0.32, 0.08, 0.02, 0.01, 0.005), calibration_pairs=2, heldout_pairs=2,
-                              average_epochs=1, amp=amp)
+        cfg = small_config(shapes, epochs=1, amp=amp)
         torch.manual_seed(0)
         model = PWCLite()
         dtypes = seen.setdefault(amp, set())
