@@ -10,6 +10,7 @@ float32 ones; on one without, autocast falls back to float32 with a warning.
 
 from __future__ import annotations
 
+import functools
 import warnings
 from contextlib import AbstractContextManager, nullcontext
 
@@ -21,9 +22,10 @@ def amp_dtype(device: torch.device | str) -> torch.dtype:
     return torch.float16 if torch.device(device).type == "cuda" else torch.bfloat16
 
 
+@functools.cache
 def bfloat16_units() -> bool:
     """Whether this CPU computes bfloat16 in hardware (AVX512-BF16 or AMX, as oneDNN sees it); without them
-    oneDNN emulates bfloat16 and autocast runs slower than float32."""
+    oneDNN emulates bfloat16 and autocast runs slower than float32. Asked once per process."""
     return bool(torch.backends.mkldnn.is_available() and torch.ops.mkldnn._is_mkldnn_bf16_supported())
 
 

@@ -86,6 +86,24 @@ def test_frames_show_the_layer_order(pool):
     assert not torch.allclose(frames[0][:, 32, 38], only_bg[0][:, 32, 38], atol=1e-3)
 
 
+def test_the_topmost_layer_shows_and_each_pair_composes_only_its_own_layers(pool):
+    s = spec(supersample=2)
+    background = Layer(0, "background", (), (47.5, 31.5), 0.0, (0.0, 0.0), 0.0, 1.0)
+    square = Layer(1, "rectangle", (14.0, 14.0), (44.0, 30.0), 0.2, (2.0, 1.0), 0.0, 1.0)
+    disc = Layer(2, "ellipse", (8.0, 8.0), (48.0, 32.0), 0.0, (-3.0, 0.0), 0.05, 1.02)
+    star = Layer(3, "star", (12.0, 6.0) * 5, (20.0, 20.0), 0.4, (1.0, -2.0), 0.0, 0.97)
+    scenes = [[background, square, disc], [background, star]]
+    both = render_frames(s, pool, scenes)
+    alone = [render_frames(s, pool, [layers])[0] for layers in scenes]
+    assert torch.equal(both[0], alone[0]) and torch.equal(both[1], alone[1])
+    # where the disc covers the square, the disc (the later layer) is what frame 1 shows
+    disc_only = render_frames(s, pool, [[background, disc]])[0]
+    square_only = render_frames(s, pool, [[background, square]])[0]
+    assert torch.equal(both[0, 0][:, 32, 48], disc_only[0][:, 32, 48])
+    assert not torch.allclose(both[0, 0][:, 32, 48], square_only[0][:, 32, 48], atol=1e-3)
+    assert torch.equal(both[0, 0][:, 20, 36], square_only[0][:, 20, 36])  # the square outside the disc
+
+
 def test_spec_rejects_inverted_ranges():
     with pytest.raises(ValueError, match="max_shapes"):
         spec(min_shapes=3, max_shapes=2)

@@ -182,8 +182,9 @@ def motion_matrix(layer: Layer) -> np.ndarray:
 
 def _apply(m: np.ndarray, points: torch.Tensor) -> torch.Tensor:
     """The affine ``m (3,3)`` applied to positions ``points (...,2)``, x first."""
+    (a, b, c), (d, e, f) = m[:2].tolist()  # Python floats: no tensor made of each numpy scalar
     x, y = points[..., 0], points[..., 1]
-    return torch.stack([m[0, 0] * x + m[0, 1] * y + m[0, 2], m[1, 0] * x + m[1, 1] * y + m[1, 2]], -1)
+    return torch.stack([a * x + b * y + c, d * x + e * y + f], -1)
 
 
 def to_layer(layer: Layer, points: torch.Tensor, frame: int) -> torch.Tensor:
@@ -247,7 +248,8 @@ def _labels(layers: Sequence[Layer], points: torch.Tensor, frame: int) -> torch.
 
 def render_frames(spec: ChairsSpec, pool: torch.Tensor, scenes: Sequence[Sequence[Layer]]) -> torch.Tensor:
     """Frames 1 and 2 of every pair → ``(n,2,3,H,W)`` in [0, 1], 8-bit steps: every layer of every pair and
-    frame sampled in one ``grid_sample`` at ``supersample`` × the size, composited, area-downsampled."""
+    frame sampled in one ``grid_sample`` at ``supersample`` × the size, each position given the colour of
+    its topmost layer, area-downsampled."""
     h, w, s = spec.height, spec.width, spec.supersample
     texture_hw = tuple(pool.shape[-2:])
     jobs = [(p, frame, layer) for p, layers in enumerate(scenes) for frame in (1, 2) for layer in layers]
@@ -256,17 +258,18 @@ def render_frames(spec: ChairsSpec, pool: torch.Tensor, scenes: Sequence[Sequenc
     grid = F.affine_grid(theta, [len(jobs), 3, h * s, w * s], align_corners=False)
     textures = pool[torch.tensor([layer.texture for _, _, layer in jobs])]
     colour = F.grid_sample(textures, grid, mode="bilinear", padding_mode="reflection", align_corners=False)
-    own = grid * torch.tensor([texture_hw[1], texture_hw[0]]) / (2 * s)  # the layers' coordinates, px
-    out = torch.zeros(len(scenes), 2, 3, h * s, w * s)
+    texels = torch.tensor([texture_hw[1], texture_hw[0]])
+    top = torch.empty(len(scenes) * 2, 1, h * s, w * s, dtype=torch.long)  # the job seen at each position
     for j, (p, frame, layer) in enumerate(jobs):
         if layer.kind == "background":
-            out[p, frame - 1] = colour[j]
+            top[2 * p + frame - 1] = j
         else:
-            mask = inside(layer, own[j])
-            out[p, frame - 1] = torch.where(mask[None], colour[j], out[p, frame - 1])
+            own = grid[j] * texels / (2 * s)  # the layer's coordinates, px
+            top[2 * p + frame - 1, 0][inside(layer, own)] = j
+    out = colour.gather(0, top.expand(-1, 3, -1, -1))
     if s > 1:
-        out = F.avg_pool2d(out.flatten(0, 1), s).unflatten(0, (len(scenes), 2))
-    return (out.clamp(0, 1) * 255).round() / 255
+        out = F.avg_pool2d(out, s)
+    return ((out.clamp(0, 1) * 255).round() / 255).unflatten(0, (len(scenes), 2))
 
 
 def flow_truth(spec: ChairsSpec, layers: Sequence[Layer]) -> tuple[torch.Tensor, torch.Tensor]:
