@@ -6,14 +6,15 @@ Usage: python stages/evaluate.py --variant NAME [--params params.yaml] [--models
 For each seed k of `train_depth.seeds`, models/depth_NAME/seed<k>.pt runs the protocol of every test set of
 `evaluate.datasets` (f2depth/eval/registry.py: NYU, the `data.nyu_labeled` test split with `evaluate.nyu_gt`,
 `evaluate.nyu_crop`; 7-Scenes, every `evaluate.sevenscenes_stride`-th test frame; Campus), each without and
-with flip post-processing, and is timed at `evaluate.timing_height` × `timing_width` (batch 1, median of
-`timing_repeats` runs after `timing_warmup`). Writes
+with flip post-processing (one forward pass of each image and its mirror gives both), and the first seed's
+model is timed at `evaluate.timing_height` × `timing_width` (batch 1, median of `timing_repeats` runs after
+`timing_warmup`; the other seeds' networks are the same, their rows repeat it). Writes
 - metrics/evaluate/NAME.json: the mean over seeds of each set's headline (nyu.*, nyu_pp.*, sevenscenes.* =
   mean over all test frames as the paper's Average row, campus.* = mean of the scene rows, ms, ms_pp),
   `n_seeds`, `per_seed`, `decoder_upsample` (`evaluate.decoder_upsample`: the depth decoder is rebuilt with
   it) and `trained_with` (the flow model and loss weights the first seed's checkpoint recorded; Table 5's
   marks);
-- reports/eval/NAME/: details.json (per-scene rows, std over images, settings, timings per seed),
+- reports/eval/NAME/: details.json (per-scene rows, std over images, settings, per seed),
   <set>.csv (per-image metrics of every seed, ± PP) and figures.npz (the first seed's predictions on a few
   test images, for the tables stage's figures);
 and mirrors the numbers to an MLflow child run `evaluate@NAME`.
@@ -117,10 +118,12 @@ def main(argv: list[str]) -> None:
     headlines, details, rows, kept = [], {}, {}, None
     with tracking.stage_run("evaluate", p, variant=args.variant, sections=("evaluate",)) as run:
         run.set_tags({"seeds": seeds})
+        timing = None  # timed with the first seed's model: every seed's network is the same
         for seed, model in zip(seeds, models):
             net_hw = (model.config.height, model.config.width)
             with torch.no_grad():
-                r = evaluate_model(model_disparity(model), sets, cfg, net_hw)
+                r = evaluate_model(model_disparity(model), sets, cfg, net_hw, timing)
+            timing = r.details["timing"]
             headlines.append(r.headline)
             details[f"seed{seed}"] = r.details
             for name, items in r.per_image.items():

@@ -236,6 +236,37 @@ def test_the_inference_copy_folds_batchnorm_and_predicts_the_same_depth():
         assert torch.allclose(fold_batchnorm(conv, bn)(u), bn(conv(u)), atol=1e-12)
 
 
+def test_the_cpu_layout_runs_layer4_in_nchw_and_the_rest_channels_last_with_the_same_depth():
+    """Issue 26 item 3: the inference copy's CPU layout (f2depth.depth.fused.cpu_layout) keeps the
+    training graph's depth (1e-5 relative) and the parameter names; layer4's weights and its input are
+    NCHW, every other convolution's weights channels-last."""
+    from torch import nn
+
+    from f2depth.depth.fused import cpu_layout, inference_copy
+    from f2depth.inference.backends import TorchBackend
+
+    torch.manual_seed(0)
+    model = DepthModel(DepthModelConfig(height=64, width=96)).eval()
+    copy = cpu_layout(inference_copy(model))
+    encoder = copy.depth_encoder
+    assert encoder.state_dict().keys() == inference_copy(model).depth_encoder.state_dict().keys()
+    for name, m in copy.named_modules():
+        if isinstance(m, nn.Conv2d) and m.kernel_size != (1, 1):
+            nchw = name.startswith("depth_encoder.layer4.")
+            assert m.weight.is_contiguous(memory_format=torch.contiguous_format if nchw
+                                          else torch.channels_last), name
+    seen = []
+    hook = encoder.layer4[0].conv1.register_forward_pre_hook(lambda m, a: seen.append(a[0].is_contiguous()))
+    x = torch.rand(2, 3, 64, 96, generator=torch.Generator().manual_seed(4))
+    with torch.inference_mode():
+        ref = model.predict_depth(x)
+        got = TorchBackend(model).depth(x)
+        copy.predict_depth(x.contiguous(memory_format=torch.channels_last))
+    hook.remove()
+    assert seen == [True]
+    assert float(((got - ref).abs() / ref.abs()).max()) < 1e-5 and ref.std() / ref.mean() > 0.005
+
+
 def test_the_inference_decoder_writes_upsampling_skip_and_padding_once_with_the_same_values():
     """Issue 26 item 3: f2depth.depth.fused.upsample_concat_pad equals reflection_pad(cat(upsample(x),
     skip)) bit for bit (odd sizes, with and without a skip), and the InferenceDecoder gives the

@@ -148,3 +148,47 @@ def test_model_disparity_is_inverse_depth():
         disp = suite.model_disparity(model)(x)
         depth = model.predict_depth(x)
     torch.testing.assert_close(disp * depth, torch.ones_like(depth))
+
+
+def test_one_pass_scores_with_and_without_pp_as_two_passes_do_and_each_image_runs_twice_not_thrice():
+    """The suite scores both from one forward pass of [img, flip(img)]: the same numbers as the protocol's
+    two separate runs (an image-dependent, asymmetric predictor), while the network sees 2 images per test
+    image instead of 3."""
+    seen = []
+
+    def varied(x: torch.Tensor) -> torch.Tensor:  # brighter, and further right, is nearer
+        seen.append(x.shape[0])
+        ramp = torch.linspace(0.5, 1.5, x.shape[-1])
+        return 0.2 + x.mean(1, keepdim=True) * ramp
+
+    data = sets()
+    for name in ("nyu", "sevenscenes", "campus"):
+        p = registry.protocol(name)
+        kw = suite.settings(p, CFG, (32, 64))
+        seen.clear()
+        plain, pp = p.evaluate_with_and_without_pp(data[name], varied, batch_size=2, keep=[0], **kw)
+        assert sum(seen) == 2 * len(data[name])
+        seen.clear()
+        apart = [p.evaluate(data[name], varied, batch_size=2, keep=[0], post_process=f, **kw) for f in (0, 1)]
+        assert sum(seen) == 3 * len(data[name])
+        for got, want in zip((plain, pp), apart):
+            assert got.metrics == pytest.approx(want.metrics, rel=1e-6, abs=1e-9), name
+            assert got.settings == want.settings
+            for m in METRIC_NAMES:
+                np.testing.assert_allclose(got.per_image[m], want.per_image[m], rtol=1e-6, atol=1e-9)
+        assert plain.metrics["abs_rel"] != pytest.approx(pp.metrics["abs_rel"], rel=1e-4)  # PP changes them
+        assert plain.settings["post_process"] is False and pp.settings["post_process"] is True
+    with pytest.raises(TypeError, match="scores both"):
+        registry.protocol("nyu").evaluate_with_and_without_pp(data["nyu"], varied, post_process=True)
+
+
+def test_timings_of_an_earlier_model_are_reused_not_measured_again(monkeypatch):
+    first = suite.evaluate_model(constant, sets(), CFG, (32, 64))
+
+    def no_timing(*args, **kwargs):
+        raise AssertionError("timed again")
+
+    monkeypatch.setattr(suite, "time_inference", no_timing)
+    second = suite.evaluate_model(constant, sets(), CFG, (32, 64), timing=first.details["timing"])
+    assert second.details["timing"] == first.details["timing"]
+    assert [second.headline[k] for k in suite.TIMING_KEYS] == [first.headline[k] for k in suite.TIMING_KEYS]

@@ -94,6 +94,26 @@ class InferenceDecoder(nn.Module):
         return torch.sigmoid(self.dispconv(F.pad(x, (1, 1, 1, 1), mode="reflect")))
 
 
+class ContiguousInput(nn.Sequential):
+    """An ``nn.Sequential`` fed NCHW (contiguous) tensors whatever layout its input comes in; its modules
+    and parameter names are those of the Sequential it wraps."""
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return super().forward(x.contiguous())
+
+
+def cpu_layout(model: DepthModel) -> DepthModel:
+    """Set the memory layout of an inference copy for a CPU, in place → ``model``: channels-last weights
+    (oneDNN's faster layout for the depth network), except the depth encoder's ``layer4``, which runs in
+    NCHW: at 1/32 of the input (9×12 at 288×384) oneDNN's NCHW convolutions beat its channels-last ones.
+    Measured at 288×384, batch 1, one thread, ten interleaved rounds: 152.1 against 155.2 ms (best of
+    each; docs/experiments/2026-12-06-inference-layer4.md)."""
+    model.to(memory_format=torch.channels_last)
+    encoder = model.depth_encoder
+    encoder.layer4 = ContiguousInput(*encoder.layer4).to(memory_format=torch.contiguous_format)
+    return model
+
+
 def inference_copy(model: DepthModel) -> DepthModel:
     """A deep copy of ``model`` in eval mode with its encoders' BatchNorms folded and, with nearest
     upsampling, the :class:`InferenceDecoder` (module docstring); only for inference (the copy has no

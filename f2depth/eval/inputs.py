@@ -14,7 +14,7 @@ import numpy as np
 import torch
 
 from f2depth.data.images import resize_rgb
-from f2depth.eval.metrics import PredictDisp, predict_disparity
+from f2depth.eval.metrics import PredictDisp, predict_disparity, predict_with_and_without_pp
 
 T = TypeVar("T")
 log = logging.getLogger(__name__)
@@ -52,7 +52,22 @@ def run_batch(predict_disp: PredictDisp, inputs: Sequence[torch.Tensor], *,
               device: str | torch.device = "cpu", post_process: bool = False,
               out_hw: tuple[int, int] | None = None, upsample: str = "nearest") -> np.ndarray:
     """Stack inputs (3,h,w) → predict (with PP) → disp (B,H,W) float32 NumPy at ``out_hw`` (or h,w)."""
-    x = torch.stack(list(inputs), 0).to(device)
     with torch.no_grad():
-        disp = predict_disparity(predict_disp, x, post_process=post_process, out_hw=out_hw, upsample=upsample)
+        disp = predict_disparity(predict_disp, torch.stack(list(inputs), 0).to(device),
+                                 post_process=post_process, out_hw=out_hw, upsample=upsample)
+    return _numpy(disp)
+
+
+def run_batch_with_and_without_pp(predict_disp: PredictDisp, inputs: Sequence[torch.Tensor], *,
+                                  device: str | torch.device = "cpu", out_hw: tuple[int, int] | None = None,
+                                  upsample: str = "nearest") -> tuple[np.ndarray, np.ndarray]:
+    """:func:`run_batch` without and with PP from one forward pass
+    (:func:`~f2depth.eval.metrics.predict_with_and_without_pp`) → two disp (B,H,W) arrays."""
+    with torch.no_grad():
+        plain, pp = predict_with_and_without_pp(predict_disp, torch.stack(list(inputs), 0).to(device),
+                                                out_hw=out_hw, upsample=upsample)
+    return _numpy(plain), _numpy(pp)
+
+
+def _numpy(disp: torch.Tensor) -> np.ndarray:
     return disp[:, 0].detach().float().cpu().numpy()

@@ -219,20 +219,38 @@ def predict_disparity(predict_disp: PredictDisp, img: torch.Tensor, *, post_proc
                       out_hw: tuple[int, int] | None = None, upsample: str = "nearest") -> torch.Tensor:
     """Run ``predict_disp`` on img (B,3,h,w) in [0,1], optionally with flip post-processing.
 
-    With ``post_process`` the network sees the batch ``[img, flip(img)]`` (2B images). When
-    ``out_hw = (H, W)`` is given, both halves are resized to it (``upsample``: nearest | bilinear)
-    *before* blending, as P²Net's evaluation does. Returns disp (B,1,H,W) (or (B,1,h,w)).
+    With ``post_process`` the network sees the batch ``[img, flip(img)]`` (2B images,
+    :func:`predict_with_and_without_pp`). When ``out_hw = (H, W)`` is given, the disparity is resized to it
+    (``upsample``: nearest | bilinear), with PP *before* blending, as P²Net's evaluation does. Returns
+    disp (B,1,H,W) (or (B,1,h,w)).
     """
+    if post_process:
+        return predict_with_and_without_pp(predict_disp, img, out_hw=out_hw, upsample=upsample)[1]
+    return _resized(predict_disp, _checked(img), out_hw, upsample)
+
+
+def predict_with_and_without_pp(predict_disp: PredictDisp, img: torch.Tensor, *,
+                                out_hw: tuple[int, int] | None = None, upsample: str = "nearest"
+                                ) -> tuple[torch.Tensor, torch.Tensor]:
+    """One pass of the batch ``[img, flip(img)]`` → (disp without flip post-processing, disp with it), both
+    (B,1,H,W) as :func:`predict_disparity` returns them: the first is the network's output on ``img``
+    itself, so scoring both costs two images a test image instead of three."""
+    b = _checked(img).shape[0]
+    disp = _resized(predict_disp, torch.cat([img, img.flip(-1)], 0), out_hw, upsample)
+    return disp[:b], flip_post_process(disp[:b], disp[b:].flip(-1))
+
+
+def _checked(img: torch.Tensor) -> torch.Tensor:
     if img.ndim != 4 or img.shape[1] != 3:
         raise ValueError(f"img must be (B,3,H,W), got {tuple(img.shape)}")
-    b = img.shape[0]
-    x = torch.cat([img, img.flip(-1)], 0) if post_process else img
+    return img
+
+
+def _resized(predict_disp: PredictDisp, x: torch.Tensor, out_hw: tuple[int, int] | None,
+             upsample: str) -> torch.Tensor:
+    """``predict_disp(x)``, checked to be (B,1,h,w), resized to ``out_hw`` when given."""
     disp = predict_disp(x)
     if disp.ndim != 4 or disp.shape[0] != x.shape[0] or disp.shape[1] != 1:
         raise ValueError(f"predict_disp must return disp (B,1,H,W) for an input {tuple(x.shape)}, got "
                          f"{tuple(disp.shape)}")
-    if out_hw is not None:
-        disp = resize_disparity(disp, out_hw, upsample)
-    if not post_process:
-        return disp
-    return flip_post_process(disp[:b], disp[b:].flip(-1))
+    return resize_disparity(disp, out_hw, upsample) if out_hw is not None else disp

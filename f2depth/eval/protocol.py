@@ -17,7 +17,7 @@ import numpy as np
 
 from f2depth.data.samples import EvalSample, SampleSet
 from f2depth.eval.metrics import METRIC_NAMES, PredictDisp
-from f2depth.eval.scoring import SETTING_NAMES, ProtocolResult, Settings, score
+from f2depth.eval.scoring import SETTING_NAMES, ProtocolResult, Settings, score, score_with_and_without_pp
 
 
 @dataclass(frozen=True)
@@ -86,12 +86,31 @@ class Protocol:
         """Score ``predict_disp`` (``img (B,3,h,w) in [0,1] → disp (B,1,h,w)``, depth ∝ 1/disp) on
         ``samples`` with :attr:`defaults` changed by ``settings`` (names of :attr:`records`); ``keep``:
         positions in ``samples`` whose scored maps the result keeps."""
+        return score(self, self._settings(settings), samples, predict_disp, progress=progress,
+                     batch=self._batch(batch_size), device=device, keep=list(keep))
+
+    def evaluate_with_and_without_pp(self, samples: Iterable[EvalSample], predict_disp: PredictDisp, *,
+                                     batch_size: int = 1, device: str = "cpu", keep: Collection[int] = (),
+                                     progress: bool = False, **settings: Any
+                                     ) -> tuple[ProtocolResult, ProtocolResult]:
+        """:meth:`evaluate` without and with flip post-processing, from one forward pass a batch (the
+        network sees each image and its mirror once) → (without, with); ``settings`` as in
+        :meth:`evaluate`, but for ``post_process``."""
+        if "post_process" in settings:
+            raise TypeError("evaluate_with_and_without_pp scores both; do not give post_process")
+        return score_with_and_without_pp(self, self._settings(settings), samples, predict_disp,
+                                         progress=progress, batch=self._batch(batch_size), device=device,
+                                         keep=list(keep))
+
+    def _settings(self, settings: Mapping[str, Any]) -> Settings:
         unknown = sorted(set(settings) - set(self.records))
         if unknown:
             raise TypeError(f"the {self.title} protocol has no setting {unknown}; it takes "
                             f"{list(self.records)}")
-        return score(self, replace(self.defaults, **settings), samples, predict_disp, progress=progress,
-                     batch=min(batch_size, self.max_batch or batch_size), device=device, keep=list(keep))
+        return replace(self.defaults, **settings)
+
+    def _batch(self, batch_size: int) -> int:
+        return min(batch_size, self.max_batch or batch_size)
 
     def details(self, r: ProtocolResult) -> dict[str, Any]:
         """One result in details.json: summaries, per-scene rows, skipped images, settings."""

@@ -17,8 +17,8 @@ P²Net's ``evaluation/nyuv2_eval_depth.py`` (Monodepth2's ``evaluate_depth.py``)
 from __future__ import annotations
 
 import logging
-from collections.abc import Iterable, Sequence
-from dataclasses import dataclass, field, fields
+from collections.abc import Iterable, Iterator, Sequence
+from dataclasses import dataclass, field, fields, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -29,7 +29,7 @@ from tqdm import tqdm
 from f2depth import threads
 from f2depth.data.errors import DataError
 from f2depth.data.samples import EvalSample
-from f2depth.eval.inputs import batched, report_skipped, run_batch, to_input
+from f2depth.eval.inputs import batched, report_skipped, run_batch, run_batch_with_and_without_pp, to_input
 from f2depth.eval.metrics import (
     METRIC_NAMES,
     EmptyMaskError,
@@ -277,16 +277,41 @@ class _Tally:
                               kept=[self.kept[i] for i in keep if i in self.kept], pooled=pooled)  # fmt: skip
 
 
+def _groups(p: Protocol, s: Settings, samples: Iterable[EvalSample], nonfinite: list[tuple[int, str]],
+            batch: int, progress: bool) -> Iterator[list[_Item]]:
+    """The samples prepared for the network: groups of at most ``batch`` of one size."""
+    for chunk in batched(enumerate(tqdm(samples, desc=p.title, disable=not progress)), batch):
+        threads.adapt()
+        yield from _same_size([_prepare(p, s, pos, sample, nonfinite) for pos, sample in chunk])
+
+
 def score(p: Protocol, s: Settings, samples: Iterable[EvalSample], predict_disp: PredictDisp, *, batch: int,
           device: str, keep: Sequence[int], progress: bool) -> ProtocolResult:
     """Score ``predict_disp`` (``img (B,3,h,w) in [0,1] → disp (B,1,h,w)``, depth ∝ 1/disp) on ``samples``
     as protocol ``p`` with settings ``s``, ``batch`` images per forward pass (of one size)."""
     tally = _Tally()
-    for chunk in batched(enumerate(tqdm(samples, desc=p.title, disable=not progress)), batch):
-        threads.adapt()
-        for group in _same_size([_prepare(p, s, pos, sample, tally.nonfinite) for pos, sample in chunk]):
-            disp = run_batch(predict_disp, [it.x for it in group], device=device, post_process=s.post_process,
-                             out_hw=group[0].out_hw, upsample=s.upsample)
-            for it, d in zip(group, disp):
-                tally.add(s, it, d, keep)
+    for group in _groups(p, s, samples, tally.nonfinite, batch, progress):
+        disp = run_batch(predict_disp, [it.x for it in group], device=device, post_process=s.post_process,
+                         out_hw=group[0].out_hw, upsample=s.upsample)
+        for it, d in zip(group, disp):
+            tally.add(s, it, d, keep)
     return tally.result(p, s, keep)
+
+
+def score_with_and_without_pp(p: Protocol, s: Settings, samples: Iterable[EvalSample],
+                              predict_disp: PredictDisp, *, batch: int, device: str, keep: Sequence[int],
+                              progress: bool) -> tuple[ProtocolResult, ProtocolResult]:
+    """:func:`score` without and with flip post-processing (whatever ``s.post_process`` says), each batch
+    through the network once (:func:`~f2depth.eval.inputs.run_batch_with_and_without_pp`) → (without, with).
+    ``keep`` applies to both."""
+    both = (replace(s, post_process=False), replace(s, post_process=True))
+    tallies = (_Tally(), _Tally())
+    for group in _groups(p, s, samples, tallies[0].nonfinite, batch, progress):
+        disps = run_batch_with_and_without_pp(predict_disp, [it.x for it in group], device=device,
+                                              out_hw=group[0].out_hw, upsample=s.upsample)
+        for tally, settings, disp in zip(tallies, both, disps):
+            for it, d in zip(group, disp):
+                tally.add(settings, it, d, keep)
+    tallies[1].nonfinite = tallies[0].nonfinite
+    plain, pp = (t.result(p, settings, keep) for t, settings in zip(tallies, both))
+    return plain, pp

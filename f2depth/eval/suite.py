@@ -132,9 +132,14 @@ def _keep_arrays(prefix: str, kept: Sequence[Kept], width: int) -> dict[str, np.
 
 
 def evaluate_model(predict: PredictDisp, sets: Mapping[str, SampleSet], cfg: SuiteConfig,
-                   net_hw: tuple[int, int]) -> ModelResult:
-    """Run the protocols of ``cfg.datasets`` on ``sets`` (name → loaded test set) and time the predictor.
-    ``net_hw``: the input size when ``cfg.height`` is None (the model's training size)."""
+                   net_hw: tuple[int, int], timing: Mapping[str, dict[str, Any]] | None = None
+                   ) -> ModelResult:
+    """Run the protocols of ``cfg.datasets`` on ``sets`` (name → loaded test set), each image and its mirror
+    through the network once for the scores without and with flip post-processing, and time the predictor.
+    ``net_hw``: the input size when ``cfg.height`` is None (the model's training size). ``timing``: the
+    ``details["timing"]`` of an earlier result of a model of the same architecture, reused instead of timed
+    again (the time depends on the architecture, not on the weights; the evaluate stage times each
+    variant's first seed)."""
     hw = (cfg.height, cfg.width) if cfg.height is not None else tuple(net_hw)
     out = ModelResult(headline={}, details={"input_hw": list(hw)})
     for name in cfg.datasets:
@@ -143,23 +148,24 @@ def evaluate_model(predict: PredictDisp, sets: Mapping[str, SampleSet], cfg: Sui
         protocol, data = registry.protocol(name), sets[name]
         figure = protocol.figure
         keep = figure.pick(data, cfg.figure_images) if figure is not None and cfg.figure_images else []
-        for pp in (False, True):
-            r = protocol.evaluate(data, predict, batch_size=cfg.batch_size, device=cfg.device,
-                                  keep=() if pp else keep, progress=cfg.progress, post_process=pp,
-                                  **settings(protocol, cfg, hw))
+        both = protocol.evaluate_with_and_without_pp(data, predict, batch_size=cfg.batch_size,
+                                                     device=cfg.device, keep=keep, progress=cfg.progress,
+                                                     **settings(protocol, cfg, hw))
+        for pp, r in zip((False, True), both):
             group = f"{name}_pp" if pp else name
             out.headline[group] = r.metrics
             out.details[group] = protocol.details(r)
             out.per_image.setdefault(name, []).extend(protocol.image_rows(r, pp))
             if not pp:
                 out.kept.update(_keep_arrays(name, r.kept, cfg.figure_width))
-    timing = {}
-    for key, pp in zip(TIMING_KEYS, (False, True)):
-        timing[key] = time_inference(predict, height=cfg.timing_height, width=cfg.timing_width,
-                                     post_process=pp, repeats=cfg.timing_repeats, warmup=cfg.timing_warmup,
-                                     device=cfg.device)
+    if timing is None:
+        timing = {key: time_inference(predict, height=cfg.timing_height, width=cfg.timing_width,
+                                      post_process=pp, repeats=cfg.timing_repeats, warmup=cfg.timing_warmup,
+                                      device=cfg.device)
+                  for key, pp in zip(TIMING_KEYS, (False, True))}
+    for key in TIMING_KEYS:
         out.headline[key] = timing[key]["ms_median"]
-    out.details["timing"] = timing
+    out.details["timing"] = dict(timing)
     return out
 
 

@@ -16,7 +16,7 @@ import torch
 
 from f2depth.data.errors import CheckpointError, DataError
 from f2depth.depth import DepthModel, load_checkpoint
-from f2depth.depth.fused import inference_copy
+from f2depth.depth.fused import cpu_layout, inference_copy
 from f2depth.inference.optional import require
 from f2depth.params import resolve_device
 
@@ -58,9 +58,11 @@ class TorchBackend:
     name = "pytorch"
 
     def __init__(self, model: DepthModel, device: str = "cpu", source: str = "") -> None:
-        # BatchNorm folded into the convolutions, channels-last: the training graph's depth to ~1e-6
-        # relative, faster (benchmarks/bench_inference.py)
-        self.model = inference_copy(model).to(device, memory_format=torch.channels_last)
+        # BatchNorm folded into the convolutions, channels-last (on a CPU the encoder's last stage in NCHW):
+        # the training graph's depth to ~1e-6 relative, faster (benchmarks/bench_inference.py)
+        copy = inference_copy(model).to(device)
+        cpu = torch.device(device).type == "cpu"
+        self.model = cpu_layout(copy) if cpu else copy.to(memory_format=torch.channels_last)
         self.device = device
         self.source = source
         self.input_hw = (model.config.height, model.config.width)
