@@ -169,7 +169,8 @@ def test_one_pass_scores_with_and_without_pp_as_two_passes_do_and_each_image_run
         plain, pp = p.evaluate_with_and_without_pp(data[name], varied, batch_size=2, keep=[0], **kw)
         assert sum(seen) == 2 * len(data[name])
         seen.clear()
-        apart = [p.evaluate(data[name], varied, batch_size=2, keep=[0], post_process=f, **kw) for f in (0, 1)]
+        apart = [p.evaluate(data[name], varied, batch_size=2, keep=[0], post_process=f, **kw)
+                 for f in (False, True)]
         assert sum(seen) == 3 * len(data[name])
         for got, want in zip((plain, pp), apart):
             assert got.metrics == pytest.approx(want.metrics, rel=1e-6, abs=1e-9), name

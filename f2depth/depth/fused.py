@@ -107,7 +107,7 @@ def cpu_layout(model: DepthModel) -> DepthModel:
     (oneDNN's faster layout for the depth network), except the depth encoder's ``layer4``, which runs in
     NCHW: at 1/32 of the input (9×12 at 288×384) oneDNN's NCHW convolutions beat its channels-last ones.
     Measured at 288×384, batch 1, one thread, ten interleaved rounds: 152.1 against 155.2 ms (best of
-    each; docs/experiments/2026-12-06-inference-layer4.md)."""
+    each; docs/experiments/2026-12-06-speed-cuts.md)."""
     model.to(memory_format=torch.channels_last)
     encoder = model.depth_encoder
     encoder.layer4 = ContiguousInput(*encoder.layer4).to(memory_format=torch.contiguous_format)
