@@ -267,25 +267,34 @@ def test_the_cpu_layout_runs_layer4_in_nchw_and_the_rest_channels_last_with_the_
     assert float(((got - ref).abs() / ref.abs()).max()) < 1e-5 and ref.std() / ref.mean() > 0.005
 
 
-def test_the_inference_decoder_writes_upsampling_skip_and_padding_once_with_the_same_values():
-    """Issue 26 item 3: f2depth.depth.fused.upsample_concat_pad equals reflection_pad(cat(upsample(x),
-    skip)) bit for bit (odd sizes, with and without a skip), and the InferenceDecoder gives the
-    DepthDecoder's disparity; bilinear decoders keep the training graph's decoder."""
+def test_the_inference_decoder_folds_the_upsampling_into_the_convolution_with_the_same_values():
+    """Issue 26 item 3: each upconv_i_1 of f2depth.depth.fused.InferenceDecoder (2×2 phase kernels on the
+    low-resolution input, the skip part at full resolution) equals the 3×3 convolution of
+    reflection_pad(cat(nearest_upsample(x), skip)) to float64 rounding (odd sizes, with and without a
+    skip); the whole decoder gives the DepthDecoder's disparity; bilinear decoders keep the training
+    graph's decoder."""
     import torch.nn.functional as F
 
-    from f2depth.depth.fused import InferenceDecoder, inference_copy, upsample_concat_pad
+    from f2depth.depth.decoder import DepthDecoder
+    from f2depth.depth.fused import InferenceDecoder, inference_copy
 
     g = torch.Generator().manual_seed(3)
-    for c1, c2, h, w in ((5, 3, 3, 7), (4, 0, 2, 5), (16, 64, 9, 12)):
-        x = torch.randn(2, c1, h, w, generator=g)
-        skip = torch.randn(2, c2, 2 * h, 2 * w, generator=g) if c2 else None
-        parts = [F.interpolate(x, scale_factor=2, mode="nearest")] + ([skip] if c2 else [])
-        ref = F.pad(torch.cat(parts, 1), (1, 1, 1, 1), mode="reflect")
-        got = upsample_concat_pad(x, skip)
-        assert got.shape == ref.shape and torch.equal(got, ref)
-        assert got.is_contiguous(memory_format=torch.channels_last)
+    decoder = DepthDecoder().double()
+    fused = InferenceDecoder(decoder)
+    for i, (h, w) in ((4, (3, 7)), (1, (5, 4)), (0, (2, 5))):
+        conv = decoder.convs[f"upconv_{i}_1"].conv
+        up = decoder.convs[f"upconv_{i}_0"].conv.out_channels
+        x = torch.randn(2, up, h, w, generator=g, dtype=torch.float64)
+        skip = (torch.randn(2, conv.in_channels - up, 2 * h, 2 * w, generator=g, dtype=torch.float64)
+                if i > 0 else None)
+        parts = [F.interpolate(x, scale_factor=2, mode="nearest")] + ([skip] if i > 0 else [])
+        ref = conv(F.pad(torch.cat(parts, 1), (1, 1, 1, 1), mode="reflect"))
+        with torch.no_grad():
+            got = fused.upconv(i, x, skip)
+        assert got.shape == ref.shape and torch.allclose(got, ref, rtol=0, atol=1e-12), i
     with pytest.raises(ValueError, match="does not match"):
-        upsample_concat_pad(torch.zeros(1, 2, 3, 3), torch.zeros(1, 2, 5, 6))
+        fused.upconv(3, torch.zeros(1, 128, 3, 3, dtype=torch.float64),
+                     torch.zeros(1, 128, 5, 6, dtype=torch.float64))
     torch.manual_seed(0)
     model = DepthModel(DepthModelConfig(height=64, width=96)).eval()
     copy = inference_copy(model)

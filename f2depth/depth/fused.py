@@ -1,16 +1,20 @@
 """An inference copy of a DepthModel: every BatchNorm folded into the convolution before it, and the depth
-decoder's nearest ×2 upsampling, skip concatenation and reflection padding written as one pass.
+decoder's nearest ×2 upsampling folded into the convolution that reads it.
 
 In eval mode a BatchNorm is an affine map per channel, ``y = γ (x − μ) / √(σ² + ε) + β``, so after a
 convolution ``x = W ∗ u + b`` it folds into that convolution: ``W' = W · s``, ``b' = (b − μ) · s + β`` with
 ``s = γ / √(σ² + ε)`` per output channel. The copy computes the same depth (to float rounding, ~1e-6
 relative) without the BatchNorm passes over the encoder's activations; the training model is untouched.
 
-Each ``upconv_i_1`` of Monodepth2's decoder reads ``reflection_pad(cat(upsample(x), skip))``: three passes
-that copy the same values. :class:`InferenceDecoder` writes the upsampled ``x`` and the skip features once
-into a padded buffer and fills its one-pixel border by reflection: bit-identical values, two passes over
-the decoder's largest tensors fewer (at 288×384 on one thread the decoder took 80 ms instead of 92;
-docs/experiments/2026-12-06-inference-decoder.md).
+Each ``upconv_i_1`` of Monodepth2's decoder is a 3×3 convolution of ``reflection_pad(cat(up(x), skip))``
+with ``up`` the nearest ×2 upsampling. Its part on ``up(x)`` needs no upsampled tensor: the output pixel
+``(2i+a, 2j+b)`` reads low-resolution rows ``i−1, i`` (a = 0) or ``i, i+1`` (a = 1), with the 3×3 kernel's
+rows summed to two (``[w0, w1+w2]`` or ``[w0+w1, w2]``), and the same for columns; reflection padding of
+the upsampled map is replicate padding of ``x``. So the four output phases are one 2×2 convolution of the
+replicate-padded ``x`` with 4× the output channels (:func:`phase_kernels`), 16 instead of 36 products
+per output and input channel at a quarter of the positions; the skip part stays a 3×3 convolution at full
+resolution, and the phases are added into its output (:class:`InferenceDecoder`). The same depth to float
+rounding (~1e-6 relative); docs/experiments/2026-12-06-speed-cuts.md has the timings.
 """
 
 from __future__ import annotations
@@ -49,32 +53,25 @@ def _fold_resnet(net: ResNet) -> None:
                 block.downsample = nn.Sequential(fold_batchnorm(block.downsample[0], block.downsample[1]))
 
 
-def upsample_concat_pad(x: torch.Tensor, skip: torch.Tensor | None) -> torch.Tensor:
-    """``reflection_pad(cat(nearest_upsample_2x(x), skip), 1)`` in one buffer (channels-last strides).
+PHASES = ((0, 0), (0, 1), (1, 0), (1, 1))
 
-    ``x (B,C1,h,w)``, ``skip (B,C2,2h,2w)`` or None → ``(B,C1+C2,2h+2,2w+2)``."""
-    b, c1, h, w = x.shape
-    hh, ww = 2 * h, 2 * w
-    c2 = 0 if skip is None else skip.shape[1]
-    if skip is not None and tuple(skip.shape[-2:]) != (hh, ww):
-        raise ValueError(f"upsample_concat_pad: skip of {tuple(skip.shape)} does not match 2× "
-                         f"{tuple(x.shape)}")
-    out = torch.empty(b, c1 + c2, hh + 2, ww + 2, dtype=x.dtype, device=x.device,
-                      memory_format=torch.channels_last)
-    inner = out[:, :c1, 1 : hh + 1, 1 : ww + 1].unflatten(2, (h, 2)).unflatten(4, (w, 2))
-    inner.copy_(x[:, :, :, None, :, None].expand(b, c1, h, 2, w, 2))
-    if skip is not None:
-        out[:, c1:, 1 : hh + 1, 1 : ww + 1] = skip
-    out[:, :, 0, 1 : ww + 1] = out[:, :, 2, 1 : ww + 1]  # reflection: padded row 0 = image row 1
-    out[:, :, hh + 1, 1 : ww + 1] = out[:, :, hh - 1, 1 : ww + 1]
-    out[:, :, :, 0] = out[:, :, :, 2]
-    out[:, :, :, ww + 1] = out[:, :, :, ww - 1]
-    return out
+
+def phase_kernels(weight: torch.Tensor) -> torch.Tensor:
+    """A 3×3 kernel ``(O,C,3,3)`` applied to a nearest-×2-upsampled input → the ``(4O,C,2,2)`` kernel of its
+    four output phases on the input itself (module docstring), phase ``(a, b)`` of :data:`PHASES` in
+    channels ``[k·O, (k+1)·O)``."""
+    def halves(w: torch.Tensor, phase: int, dim: int) -> torch.Tensor:
+        w0, w1, w2 = w.unbind(dim)
+        pair = (w0, w1 + w2) if phase == 0 else (w0 + w1, w2)
+        return torch.stack(pair, dim)
+
+    return torch.cat([halves(halves(weight, a, 2), b, 3) for a, b in PHASES], 0)
 
 
 class InferenceDecoder(nn.Module):
-    """A nearest-upsampling :class:`~f2depth.depth.decoder.DepthDecoder` run with
-    :func:`upsample_concat_pad` (module docstring); the same submodules and parameter names.
+    """A nearest-upsampling :class:`~f2depth.depth.decoder.DepthDecoder` with each ``upconv_i_1``'s
+    upsampling folded into its convolution (module docstring); the same submodules and parameter names (the
+    phase kernels are buffers outside the state dict, made when the decoder is built).
 
     forward: features [(B,64,H/2,W/2), …, (B,512,H/32,W/32)] → disp (B,1,H,W) in (0, 1)."""
 
@@ -84,13 +81,43 @@ class InferenceDecoder(nn.Module):
             raise ValueError(f"InferenceDecoder: only nearest upsampling, got {decoder.upsample_mode!r}")
         self.upsample_mode, self.num_ch_enc = decoder.upsample_mode, decoder.num_ch_enc
         self.convs, self.dispconv = decoder.convs, decoder.dispconv
+        with torch.no_grad():
+            for i in range(5):
+                conv = self.convs[f"upconv_{i}_1"].conv
+                up = self.convs[f"upconv_{i}_0"].conv.out_channels  # channels of up(x); the rest: the skip
+                self.register_buffer(f"phase_{i}", phase_kernels(conv.weight[:, :up]), persistent=False)
+                self.register_buffer(f"skip_{i}", conv.weight[:, up:].clone(), persistent=False)
+
+    def upconv(self, i: int, x: torch.Tensor, skip: torch.Tensor | None) -> torch.Tensor:
+        """``upconv_i_1``'s convolution (before its ELU) of ``reflection_pad(cat(up(x), skip))``:
+        ``x (B,C,h,w)``, ``skip (B,S,2h,2w)`` or None → ``(B,O,2h,2w)``."""
+        bias = self.convs[f"upconv_{i}_1"].conv.bias
+        b, _, h, w = x.shape
+        if skip is not None and tuple(skip.shape[-2:]) != (2 * h, 2 * w):
+            raise ValueError(f"InferenceDecoder: skip of {tuple(skip.shape)} does not match 2× "
+                             f"{tuple(x.shape)}")
+        o = bias.shape[0]
+        phases = F.conv2d(F.pad(x, (1, 1, 1, 1), mode="replicate"), getattr(self, f"phase_{i}"),
+                          None if skip is not None else bias.repeat(4))  # (B,4O,h+1,w+1)
+        if skip is None:
+            out = torch.empty(b, o, 2 * h, 2 * w, dtype=x.dtype, device=x.device,
+                              memory_format=torch.channels_last)
+        else:
+            out = F.conv2d(F.pad(skip, (1, 1, 1, 1), mode="reflect"), getattr(self, f"skip_{i}"), bias)
+        for k, (a, c) in enumerate(PHASES):
+            part = phases[:, k * o:(k + 1) * o, a:a + h, c:c + w]
+            if skip is None:
+                out[:, :, a::2, c::2] = part
+            else:
+                out[:, :, a::2, c::2] += part
+        return out
 
     def forward(self, features: list[torch.Tensor]) -> torch.Tensor:
         x = features[-1]
         for i in range(4, -1, -1):
             first, second = self.convs[f"upconv_{i}_0"], self.convs[f"upconv_{i}_1"]
             x = first.nonlin(first.conv(F.pad(x, (1, 1, 1, 1), mode="reflect")))
-            x = second.nonlin(second.conv(upsample_concat_pad(x, features[i - 1] if i > 0 else None)))
+            x = second.nonlin(self.upconv(i, x, features[i - 1] if i > 0 else None))
         return torch.sigmoid(self.dispconv(F.pad(x, (1, 1, 1, 1), mode="reflect")))
 
 
