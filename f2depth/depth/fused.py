@@ -86,7 +86,8 @@ class InferenceDecoder(nn.Module):
                 conv = self.convs[f"upconv_{i}_1"].conv
                 up = self.convs[f"upconv_{i}_0"].conv.out_channels  # channels of up(x); the rest: the skip
                 self.register_buffer(f"phase_{i}", phase_kernels(conv.weight[:, :up]), persistent=False)
-                self.register_buffer(f"skip_{i}", conv.weight[:, up:].clone(), persistent=False)
+                if i > 0:  # upconv_0_1 reads no skip
+                    self.register_buffer(f"skip_{i}", conv.weight[:, up:].clone(), persistent=False)
 
     def upconv(self, i: int, x: torch.Tensor, skip: torch.Tensor | None) -> torch.Tensor:
         """``upconv_i_1``'s convolution (before its ELU) of ``reflection_pad(cat(up(x), skip))``:
@@ -97,19 +98,20 @@ class InferenceDecoder(nn.Module):
             raise ValueError(f"InferenceDecoder: skip of {tuple(skip.shape)} does not match 2× "
                              f"{tuple(x.shape)}")
         o = bias.shape[0]
-        phases = F.conv2d(F.pad(x, (1, 1, 1, 1), mode="replicate"), getattr(self, f"phase_{i}"),
-                          None if skip is not None else bias.repeat(4))  # (B,4O,h+1,w+1)
-        if skip is None:
+        x = F.pad(x, (1, 1, 1, 1), mode="replicate")
+        if skip is None:  # the phases are the whole output: the bias goes into them
+            phases = F.conv2d(x, getattr(self, f"phase_{i}"), bias.repeat(4))  # (B,4O,h+1,w+1)
             out = torch.empty(b, o, 2 * h, 2 * w, dtype=x.dtype, device=x.device,
                               memory_format=torch.channels_last)
         else:
+            phases = F.conv2d(x, getattr(self, f"phase_{i}"))
             out = F.conv2d(F.pad(skip, (1, 1, 1, 1), mode="reflect"), getattr(self, f"skip_{i}"), bias)
         for k, (a, c) in enumerate(PHASES):
-            part = phases[:, k * o:(k + 1) * o, a:a + h, c:c + w]
+            at, part = out[:, :, a::2, c::2], phases[:, k * o:(k + 1) * o, a:a + h, c:c + w]
             if skip is None:
-                out[:, :, a::2, c::2] = part
+                at.copy_(part)
             else:
-                out[:, :, a::2, c::2] += part
+                at.add_(part)
         return out
 
     def forward(self, features: list[torch.Tensor]) -> torch.Tensor:
