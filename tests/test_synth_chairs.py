@@ -104,6 +104,33 @@ def test_the_topmost_layer_shows_and_each_pair_composes_only_its_own_layers(pool
     assert torch.equal(both[0, 0][:, 20, 36], square_only[0][:, 20, 36])  # the square outside the disc
 
 
+def test_frames_equal_every_layer_sampled_whole_and_composited_in_order(pool):
+    """Sampling each position only in its topmost layer's texture gives, bit for bit, the plain painter's
+    composite: every layer sampled over the whole frame, later layers pasted over earlier ones."""
+    import torch.nn.functional as F
+
+    from f2depth.synth.chairs import _texture_theta, draw_layers, inside, layer_matrix
+
+    s = spec(supersample=2)
+    scenes = [draw_layers(s, np.random.default_rng([4, i]), len(pool)) for i in range(5)]
+    got = render_frames(s, pool, scenes)
+    h, w, k = s.height * 2, s.width * 2, 2
+    texels = torch.tensor([pool.shape[-1], pool.shape[-2]])
+    for p, layers in enumerate(scenes):
+        for frame in (1, 2):
+            theta = torch.from_numpy(np.stack([_texture_theta(layer_matrix(la, frame), (s.height, s.width),
+                                                              tuple(pool.shape[-2:]), k)
+                                               for la in layers])).float()
+            grid = F.affine_grid(theta, [len(layers), 3, h, w], align_corners=False)
+            whole = F.grid_sample(pool[[la.texture for la in layers]], grid, mode="bilinear",
+                                  padding_mode="reflection", align_corners=False)
+            painted = whole[0]
+            for i, la in enumerate(layers[1:], 1):
+                painted = torch.where(inside(la, grid[i] * texels / (2 * k)), whole[i], painted)
+            want = (F.avg_pool2d(painted[None], k)[0].clamp(0, 1) * 255).round() / 255
+            assert torch.equal(got[p, frame - 1], want), (p, frame)
+
+
 def test_spec_rejects_inverted_ranges():
     with pytest.raises(ValueError, match="max_shapes"):
         spec(min_shapes=3, max_shapes=2)

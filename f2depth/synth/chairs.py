@@ -213,7 +213,8 @@ def inside(layer: Layer, u: torch.Tensor) -> torch.Tensor:
     t = (torch.atan2(y, x) % (2 * math.pi)) / (2 * math.pi) * k
     j = t.floor().long().clamp(max=k - 1)
     frac = t - j
-    bound = radii[j] * (1 - frac) + radii[j + 1] * frac
+    bound = radii.index_select(0, j.flatten()).view_as(j) * (1 - frac) \
+        + radii.index_select(0, (j + 1).flatten()).view_as(j) * frac
     return x.hypot(y) <= bound
 
 
@@ -247,26 +248,35 @@ def _labels(layers: Sequence[Layer], points: torch.Tensor, frame: int) -> torch.
 
 
 def render_frames(spec: ChairsSpec, pool: torch.Tensor, scenes: Sequence[Sequence[Layer]]) -> torch.Tensor:
-    """Frames 1 and 2 of every pair → ``(n,2,3,H,W)`` in [0, 1], 8-bit steps: every layer of every pair and
-    frame sampled in one ``grid_sample`` at ``supersample`` × the size, each position given the colour of
-    its topmost layer, area-downsampled."""
+    """Frames 1 and 2 of every pair → ``(n,2,3,H,W)`` in [0, 1], 8-bit steps, rendered at ``supersample`` ×
+    the size and area-downsampled. Every layer of every pair and frame is placed by one ``affine_grid``;
+    each position is then sampled (``grid_sample``, bilinear) once, in the texture of its topmost layer
+    only: a texture is read in place, never copied, and hidden positions are never sampled."""
     h, w, s = spec.height, spec.width, spec.supersample
     texture_hw = tuple(pool.shape[-2:])
     jobs = [(p, frame, layer) for p, layers in enumerate(scenes) for frame in (1, 2) for layer in layers]
     mats = [layer_matrix(layer, frame) for _, frame, layer in jobs]
     theta = torch.from_numpy(np.stack([_texture_theta(m, (h, w), texture_hw, s) for m in mats])).float()
     grid = F.affine_grid(theta, [len(jobs), 3, h * s, w * s], align_corners=False)
-    textures = pool[torch.tensor([layer.texture for _, _, layer in jobs])]
-    colour = F.grid_sample(textures, grid, mode="bilinear", padding_mode="reflection", align_corners=False)
     texels = torch.tensor([texture_hw[1], texture_hw[0]])
-    top = torch.empty(len(scenes) * 2, 1, h * s, w * s, dtype=torch.long)  # the job seen at each position
+    top = torch.empty(len(scenes) * 2, h * s, w * s, dtype=torch.long)  # the job seen at each position
     for j, (p, frame, layer) in enumerate(jobs):
         if layer.kind == "background":
             top[2 * p + frame - 1] = j
         else:
             own = grid[j] * texels / (2 * s)  # the layer's coordinates, px
-            top[2 * p + frame - 1, 0][inside(layer, own)] = j
-    out = colour.gather(0, top.expand(-1, 3, -1, -1))
+            top[2 * p + frame - 1][inside(layer, own)] = j
+    out = torch.empty(len(scenes) * 2, 3, h * s * w * s)
+    top, grid = top.flatten(1), grid.flatten(1, 2)
+    for j, (p, frame, layer) in enumerate(jobs):
+        f = 2 * p + frame - 1
+        seen = (top[f] == j).nonzero()[:, 0]
+        if len(seen):
+            where = grid[j].index_select(0, seen)[None, None]
+            colour = F.grid_sample(pool[layer.texture:layer.texture + 1], where, mode="bilinear",
+                                   padding_mode="reflection", align_corners=False)
+            out[f].index_copy_(1, seen, colour[0, :, 0])
+    out = out.unflatten(2, (h * s, w * s))
     if s > 1:
         out = F.avg_pool2d(out, s)
     return ((out.clamp(0, 1) * 255).round() / 255).unflatten(0, (len(scenes), 2))
