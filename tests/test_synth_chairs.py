@@ -131,6 +131,12 @@ def test_frames_equal_every_layer_sampled_whole_and_composited_in_order(pool):
             assert torch.equal(got[p, frame - 1], want), (p, frame)
 
 
+def test_a_pair_without_its_background_first_is_refused(pool):
+    disc = Layer(2, "ellipse", (8.0, 8.0), (48.0, 32.0), 0.0, (-3.0, 0.0), 0.05, 1.02)
+    with pytest.raises(ValueError, match="background"):
+        render_frames(spec(), pool, [[disc]])
+
+
 def test_spec_rejects_inverted_ranges():
     with pytest.raises(ValueError, match="max_shapes"):
         spec(min_shapes=3, max_shapes=2)

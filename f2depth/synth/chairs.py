@@ -252,6 +252,8 @@ def render_frames(spec: ChairsSpec, pool: torch.Tensor, scenes: Sequence[Sequenc
     the size and area-downsampled. Every layer of every pair and frame is placed by one ``affine_grid``;
     each position is then sampled (``grid_sample``, bilinear) once, in the texture of its topmost layer
     only: a texture is read in place, never copied, and hidden positions are never sampled."""
+    if any(not layers or layers[0].kind != "background" for layers in scenes):
+        raise ValueError("render_frames: every pair's first layer must be its background (draw_layers)")
     h, w, s = spec.height, spec.width, spec.supersample
     texture_hw = tuple(pool.shape[-2:])
     jobs = [(p, frame, layer) for p, layers in enumerate(scenes) for frame in (1, 2) for layer in layers]
