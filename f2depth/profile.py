@@ -26,6 +26,9 @@ def _yaml() -> YAML:
     y = YAML()
     y.preserve_quotes = True
     y.width = 120
+    # a null stays `null` (ruamel's round trip would write an empty value: the same YAML, a noisy diff)
+    y.representer.add_representer(type(None),
+                                  lambda r, _: r.represent_scalar("tag:yaml.org,2002:null", "null"))
     return y
 
 

@@ -48,3 +48,12 @@ def test_cpu_profile_matches_committed_params():
         for part in dotted.split("."):
             node = node[part]
         assert node == value, dotted
+
+
+def test_applying_the_cpu_profile_leaves_the_committed_file_byte_for_byte(tmp_path):
+    """Nulls stay `null`, comments and their columns stay: `make cpu` on the CPU default is no diff."""
+    params = tmp_path / "params.yaml"
+    shutil.copy(ROOT / "params.yaml", params)
+    assert "threads: null" in params.read_text()
+    assert profile.apply("cpu", params, ROOT / "configs/profiles.yaml") == []
+    assert params.read_text() == (ROOT / "params.yaml").read_text()
