@@ -213,8 +213,7 @@ def inside(layer: Layer, u: torch.Tensor) -> torch.Tensor:
     t = (torch.atan2(y, x) % (2 * math.pi)) / (2 * math.pi) * k
     j = t.floor().long().clamp(max=k - 1)
     frac = t - j
-    bound = radii.index_select(0, j.flatten()).view_as(j) * (1 - frac) \
-        + radii.index_select(0, (j + 1).flatten()).view_as(j) * frac
+    bound = radii.take(j) * (1 - frac) + radii.take(j + 1) * frac
     return x.hypot(y) <= bound
 
 
