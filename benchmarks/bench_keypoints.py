@@ -24,7 +24,7 @@ import torch  # noqa: E402
 from f2depth.io import write_json  # noqa: E402
 from f2depth.keypoints import KeypointSelector  # noqa: E402
 
-REFERENCE = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "dso_reference"
+REFERENCE = Path(__file__).resolve().parents[1] / "tests" / "data" / "dso"
 
 
 def synthetic_images(count: int, seed: int = 0) -> list[np.ndarray]:

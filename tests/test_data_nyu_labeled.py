@@ -13,7 +13,7 @@ import pytest
 from f2depth.data.errors import DataError
 from f2depth.data.nyu_labeled import NYULabeledSet, read_splits, scene_names, scenes_of_test_images
 
-REAL_SPLITS = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "nyu" / "splits.mat"
+REAL_SPLITS = Path(__file__).resolve().parent / "data" / "nyu" / "splits.mat"
 SCENES = ["bedroom_0001", "kitchen_0003a", "bedroom_0001", "office_0012"]
 
 

@@ -2,9 +2,8 @@
 
 Scans every ``*.py``, ``*.md``, ``*.yaml`` and ``*.toml`` file of the repository (outside hidden folders and
 the top-level ``data``, ``models``, ``mlruns`` and ``tmp``) for references to the project's internal
-specification and research notes, and to the reference-data folder next to the repository. Tests may
-read that folder's ``data`` subfolder (they are the only code that does), so the literal path to it is
-allowed under ``tests/``.
+specification and research notes, and to the folder of reference data next to the repository: the tests
+read theirs from ``tests/data/`` (tests/test_no_outside_paths.py).
 """
 
 from __future__ import annotations
@@ -24,13 +23,10 @@ PATTERNS = (
     ("folder outside the repository", re.compile(r"\bshared/")),
     ("session notes", re.compile(r"/work/" + "notes")),
 )
-TEST_DATA = "../" + "shared/data"
 
 
-def offending(line: str, in_tests: bool) -> list[str]:
-    """Names of the patterns ``line`` matches; under tests/ the path to the reference data is allowed."""
-    if in_tests:
-        line = line.replace(TEST_DATA, "")
+def offending(line: str) -> list[str]:
+    """Names of the patterns ``line`` matches."""
     return [name for name, pattern in PATTERNS if pattern.search(line)]
 
 
@@ -45,16 +41,15 @@ def scanned_files(root: Path = ROOT) -> list[Path]:
     return sorted(files)
 
 
-def test_matcher_flags_internal_references_and_allows_test_data():
-    assert offending("Terms (SP" + "EC §4.4), all on", False) == ["internal spec"]
-    assert offending("see research/" + "p2net.md §3", False) == ["research notes", "research note file"]
-    assert offending("(research §3.6)", False) == ["research notes"]
-    assert offending("written from ../shared/" + "research/dso.md", False) == [
+def test_matcher_flags_internal_references():
+    assert offending("Terms (SP" + "EC §4.4), all on") == ["internal spec"]
+    assert offending("see research/" + "p2net.md §3") == ["research notes", "research note file"]
+    assert offending("(research §3.6)") == ["research notes"]
+    assert offending("written from ../shared/" + "research/dso.md") == [
         "research notes", "research note file", "folder outside the repository"]
-    assert offending('REF = "../shared/data/dso_reference"', True) == []
-    assert offending('REF = "../shared/data/dso_reference"', False) == ["folder outside the repository"]
-    assert offending("the paper §3.2; P²Net's code (`trainer_geo.py`)", False) == []
-    assert offending("_LATEX_SPECIAL = {", False) == []
+    assert offending('REF = "../shared/data/dso_reference"') == ["folder outside the repository"]
+    assert offending("the paper §3.2; P²Net's code (`trainer_geo.py`)") == []
+    assert offending("_LATEX_SPECIAL = {") == []
 
 
 def test_no_reference_to_files_a_clone_lacks():
@@ -66,9 +61,8 @@ def test_no_reference_to_files_a_clone_lacks():
         rel = path.relative_to(ROOT).as_posix()
         if rel == "tests/test_docs_citations.py":
             continue
-        in_tests = rel.startswith("tests/")
         for number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1):
-            found = offending(line, in_tests)
+            found = offending(line)
             if found:
                 hits.append(f"{rel}:{number}: {', '.join(found)}: {line.strip()[:100]}")
     assert not hits, (

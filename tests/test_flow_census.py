@@ -11,7 +11,7 @@ import torch
 from f2depth.flow.census import census_distance
 from f2depth.geometry import warp
 
-REF = Path(__file__).resolve().parents[2] / "shared" / "data" / "arflow_reference" / "pwclite_seed0_io.npz"
+REF = Path(__file__).resolve().parent / "data" / "arflow" / "pwclite_seed0_io.npz"
 
 
 @pytest.fixture(scope="module")

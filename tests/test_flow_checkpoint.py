@@ -16,7 +16,7 @@ from f2depth.flow.checkpoint import (
     save_flow_model,
 )
 
-REF = Path(__file__).resolve().parents[2] / "shared" / "data" / "arflow_reference" / "pwclite_seed0.pth.tar"
+REF = Path(__file__).resolve().parent / "data" / "arflow" / "pwclite_seed0.pth.tar"
 
 
 @pytest.fixture(scope="module")

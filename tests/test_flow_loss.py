@@ -25,7 +25,7 @@ from f2depth.flow.loss import (
 )
 from f2depth.geometry import warp
 
-REF = Path(__file__).resolve().parents[2] / "shared" / "data" / "arflow_reference" / "arflow_loss_seed0.npz"
+REF = Path(__file__).resolve().parent / "data" / "arflow" / "arflow_loss_seed0.npz"
 
 
 def _image(seed: int, hw=(64, 96)) -> torch.Tensor:

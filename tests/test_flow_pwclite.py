@@ -10,7 +10,7 @@ import torch
 
 from f2depth.flow import PWCLite, load_flow_model
 
-REF_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "arflow_reference"
+REF_DIR = Path(__file__).resolve().parent / "data" / "arflow"
 
 
 @pytest.fixture(scope="module")

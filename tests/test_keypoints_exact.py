@@ -1,4 +1,4 @@
-"""Exactness against the DSO reference build (../shared/data/dso_reference): every mode, every case,
+"""Exactness against the DSO reference build (tests/data/dso): every mode, every case,
 point for point and level for level; also the pot DSO keeps for the next frame and the level counts."""
 
 from __future__ import annotations
@@ -13,13 +13,13 @@ import pytest
 from f2depth.keypoints import KeypointSelector, select_pixels
 from f2depth.keypoints.select import prepare, select
 
-REFERENCE = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "dso_reference"
+REFERENCE = Path(__file__).resolve().parent / "data" / "dso"
 CASES = ["case1_rects_640x480", "case2_edges_640x480", "case4_texture_640x480"]
 
 
 def _image(case: str) -> np.ndarray:
     path = REFERENCE / f"{case}.pgm"
-    assert path.is_file(), f"{path} missing: the DSO reference outputs live in ../shared/data/dso_reference"
+    assert path.is_file(), f"{path} missing: the DSO reference outputs live in tests/data/dso"
     image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     assert image is not None and image.dtype == np.uint8 and image.shape == (480, 640)
     return image

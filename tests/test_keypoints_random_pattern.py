@@ -9,12 +9,12 @@ import numpy as np
 
 from f2depth.keypoints.random_pattern import DSO_SEED, glibc_rand, random_pattern
 
-REFERENCE = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "dso_reference"
+REFERENCE = Path(__file__).resolve().parent / "data" / "dso"
 
 
 def test_pattern_equals_reference_dump():
     path = REFERENCE / "randomPattern_first307200.txt.gz"
-    assert path.is_file(), f"{path} missing: the DSO reference outputs live in ../shared/data/dso_reference"
+    assert path.is_file(), f"{path} missing: the DSO reference outputs live in tests/data/dso"
     with gzip.open(path, "rt") as fh:
         reference = np.loadtxt(fh, dtype=np.int64)
     assert reference.shape == (307200,)
