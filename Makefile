@@ -10,7 +10,7 @@ STAMP  := $(VENV)/.installed
 # DVC stage commands call `python`: make it the venv's.
 export PATH := $(abspath $(VENV))/bin:$(PATH)
 
-.PHONY: install repro test lint bench gpu-check paper cpu clean-venv
+.PHONY: install repro test lint bench gpu-check paper cpu clean-venv mlflow-compare
 
 $(STAMP): pyproject.toml requirements.lock
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -43,6 +43,11 @@ bench: $(STAMP)
 # CUDA correctness, throughput and a projected `make paper` time on one GPU (reports/benchmarks/).
 gpu-check: $(STAMP)
 	$(BIN)/python benchmarks/gpu_check.py --device cuda --out reports/benchmarks
+
+# MLflow's compare view of the latest pipeline's evaluate runs -> docs/images/mlflow_compare.png (headless
+# Chromium; `python tools/mlflow_compare.py --serve` opens the UI on the runs instead).
+mlflow-compare: $(STAMP)
+	$(BIN)/python tools/mlflow_compare.py
 
 paper: $(STAMP)
 	$(BIN)/python -m f2depth.profile paper

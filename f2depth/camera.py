@@ -72,6 +72,22 @@ def undistort_image(image: np.ndarray, K: np.ndarray, dist: np.ndarray) -> np.nd
     return cv2.undistort(image, K, dist)
 
 
+def undistorted_valid_share(K: np.ndarray, dist: np.ndarray, hw: tuple[int, int], side: int = 160) -> float:
+    """The share of an :func:`undistort_image` output (intrinsics K, distortion ``dist``, size ``hw``) that
+    reads from inside the distorted frame, the rest being black; measured on a copy at most ``side`` px on
+    its long side (the share does not depend on the size: the distortion acts on normalised coordinates)."""
+    h, w = hw
+    s = min(1.0, side / max(h, w))
+    small = (max(round(h * s), 1), max(round(w * s), 1))
+    Ks = crop_resize_intrinsics(np.asarray(K, np.float64), hw, 0, small)
+    with np.errstate(all="ignore"):
+        map_x, map_y = cv2.initUndistortRectifyMap(Ks, np.asarray(dist, np.float64), None, Ks,
+                                                   (small[1], small[0]), cv2.CV_32FC1)
+        inside = (np.isfinite(map_x) & np.isfinite(map_y) & (map_x >= -0.5) & (map_x <= small[1] - 0.5)
+                  & (map_y >= -0.5) & (map_y <= small[0] - 0.5))
+    return float(inside.mean())
+
+
 def crop_resize_intrinsics(K: np.ndarray, src_hw: tuple[int, int], crop: int, dst_hw: tuple[int, int],
                            p2net_cxcy_bug: bool = False) -> np.ndarray:
     """Intrinsics after cropping ``crop`` px from every side of a ``src_hw`` image and resizing to ``dst_hw``.

@@ -43,11 +43,12 @@ resized back to the frame's size."""
 
 PREDICT_EPILOG = """\
 Writes per frame (video frames are named frame_000000, ...):
-  <name>_depth_mm.png     uint16 depth in millimetres
+  <name>_depth_mm.png     uint16 depth in millimetres (0 = no depth; clipped to 1..65534)
   <name>_depth.npy        float32 depth in metres
   <name>_depth_color.png  colour-mapped disparity (magma)
   <name>_points.ply       with --ply: coloured points in the camera frame (x right, y down, z forward)
-and predict.json (scale, model, intrinsics). Every file is written atomically.
+and predict.json (scale, model, intrinsics). Every file is written atomically; the folder is built aside
+and swapped in, and replaces only an empty folder or an earlier predict's.
 exit codes: 0 ok, 1 bad input, 2 usage error, 3 optional dependency missing, 130 interrupted, 143
 terminated (SIGTERM)"""
 
@@ -163,7 +164,8 @@ def build_parser() -> argparse.ArgumentParser:
     _add_network(p)
     p.add_argument("--input", type=Path, required=True, metavar="PATH",
                    help="image, folder of images or video")
-    p.add_argument("--output", type=Path, required=True, metavar="DIR", help="output folder (created)")
+    p.add_argument("--output", type=Path, required=True, metavar="DIR",
+                   help="output folder: new, empty or an earlier predict's (replaced as a whole)")
     scale = p.add_mutually_exclusive_group()
     scale.add_argument("--scale", type=_positive_float, metavar="S", help="multiply every depth by S")
     scale.add_argument("--scale-from", type=Path, metavar="FILE",
@@ -186,7 +188,8 @@ def build_parser() -> argparse.ArgumentParser:
                                    "section; the flags override it.")
     _add_threads(p)
     p.add_argument("inputs", type=Path, nargs="+", metavar="INPUT", help="videos and/or folders of images")
-    p.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder (replaced)")
+    p.add_argument("--out", type=Path, required=True, metavar="DIR",
+                   help="output folder: new, empty or an earlier ingest's (replaced as a whole)")
     cam = p.add_mutually_exclusive_group()
     cam.add_argument("--camera", type=Path, metavar="FILE",
                      help="intrinsics: our JSON/YAML, COLMAP cameras.txt or an OpenCV calibration YAML")
@@ -260,12 +263,15 @@ def _out(text: str) -> None:
 
 
 def _cmd_predict(args: argparse.Namespace) -> int:
+    from f2depth.data.writable import check_apart
     from f2depth.inference.backends import load_backend
     from f2depth.inference.predict import Predictor, PredictSettings, run_predict
     from f2depth.inference.sources import check_output_apart, open_source
     from f2depth.threads import budget
 
     check_output_apart(args.input, args.output)
+    # predict swaps its output folder in as a whole: it may lie inside the input folder, not hold an input
+    check_apart((args.input, args.model, args.onnx, args.scale_from), args.output, inside_ok=True)
     source = open_source(args.input)
     backend = load_backend(args.model, args.onnx, args.device, budget(args.threads))
     settings = PredictSettings(args.output, batch_size=args.batch_size, scale=args.scale,
@@ -279,8 +285,12 @@ def _cmd_predict(args: argparse.Namespace) -> int:
     _out(f"wrote {summary['frames']} frame(s) to {args.output} ({backend.name}, "
          f"scale {summary['scale']:.4g}, {kind})")
     for text in summary["warnings"]:
-        sys.stderr.write(f"f2depth {args.command}: warning: {' '.join(str(text).split())}\n")
+        _warn(args.command, text)
     return 0
+
+
+def _warn(command: str, text: str) -> None:
+    sys.stderr.write(f"f2depth {command}: warning: {' '.join(str(text).split())}\n")
 
 
 def _cmd_ingest(args: argparse.Namespace) -> int:
@@ -290,13 +300,18 @@ def _cmd_ingest(args: argparse.Namespace) -> int:
     params = P.load(args.params)
     flags = {"frame_step": args.frame_step, "rate": args.rate, "min_motion": args.min_motion,
              "min_sharpness": args.min_sharpness, "max_side": args.max_side}
-    params["ingest"] = {**P.get(params, "ingest"), **{k: v for k, v in flags.items() if v is not None}}
+    given = {k: v for k, v in flags.items() if v is not None}
+    names = {k: "--" + k.replace("_", "-") for k in given}  # a flag's value is the flag's, in every message
+    given = {k: P.check_field(IngestConfig, k, v, names[k]) for k, v in given.items()}
+    params["ingest"] = {**P.get(params, "ingest"), **given}
     config = P.section(params, "ingest", IngestConfig)
     summary = ingest(args.inputs, args.out, config, camera_file=args.camera, fov=args.fov,
-                     progress=not args.no_progress)
+                     progress=not args.no_progress, names=names)
     for scene, r in summary["scenes"].items():
         _out(f"{scene}: kept {r['kept']} of {r['sampled']} sampled frames ({r['static']} static, "
              f"{r['blur']} blurred dropped; {r['untracked']} kept untracked)")
+    for text in summary["warnings"]:
+        _warn(args.command, text)
     cam = summary["camera"]
     _out(f"wrote {len(summary['scenes'])} scene(s) to {args.out}: {cam['width']}×{cam['height']}, fx "
          f"{cam['K'][0][0]:.1f} px ({summary['input_camera']['intrinsics_source']})")
@@ -308,13 +323,20 @@ def _cmd_export(args: argparse.Namespace) -> int:
     from f2depth.inference.backends import load_depth_model
     from f2depth.inference.export import export_onnx
 
+    _check_suffix(args.output, ".onnx", "--output", "the ONNX model")
     check_output_file(args.output)
     model = load_depth_model(args.model, "cpu")
+    trained = (model.config.height, model.config.width)
     try:
-        check_export_size(args.height or model.config.height, args.width or model.config.width)
+        check_export_size(args.height or trained[0], args.width or trained[1])
     except ValueError as exc:
         raise UsageError(f"{exc} (--height/--width; {args.model} was trained at "
-                         f"{model.config.height}×{model.config.width})") from None
+                         f"{trained[0]}×{trained[1]})") from None
+    if (args.height or trained[0], args.width or trained[1]) != trained:
+        _warn(args.command, f"exporting at {args.height or trained[0]}×{args.width or trained[1]}, but "
+                            f"{args.model} was trained at {trained[0]}×{trained[1]}: the export's depth will "
+                            "not be the model's (`predict --model` and `--onnx` disagree); leave out "
+                            "--height/--width for the training size")
     parity = export_onnx(model, args.output, args.height, args.width, opset=args.opset,
                          source=str(args.model))
     h, w = parity.hw
@@ -326,7 +348,7 @@ def _cmd_export(args: argparse.Namespace) -> int:
 
 def _cmd_reconstruct(args: argparse.Namespace) -> int:
     from f2depth.data.writable import check_output_file
-    from f2depth.inference.backends import load_backend
+    from f2depth.inference.backends import load_backend, size_mismatch
     from f2depth.inference.predict import Predictor
     from f2depth.inference.reconstruct import ReconstructSettings, TSDFSettings, reconstruct
     from f2depth.inference.sequences import sevenscenes_sequence, synth_sequence
@@ -340,6 +362,8 @@ def _cmd_reconstruct(args: argparse.Namespace) -> int:
     for option, path in (("--output", args.output), ("--reference-mesh", args.reference_mesh),
                          ("--metrics", args.metrics)):
         if path is not None:
+            if option != "--metrics":
+                _check_suffix(path, ".ply", option, "the mesh (a binary PLY)")
             check_output_file(path, option)
     tsdf = TSDFSettings(voxel=args.voxel, trunc=args.trunc, max_depth=args.max_depth)
     if args.poses == "synth":
@@ -350,6 +374,9 @@ def _cmd_reconstruct(args: argparse.Namespace) -> int:
     if args.depth_source == "predicted":
         backend = load_backend(args.model, args.onnx, args.device, budget(args.threads))
         predictor = Predictor(backend, post_process=args.post_process)
+        mismatch = size_mismatch(backend)
+        if mismatch is not None:
+            _warn(args.command, mismatch)
     settings = ReconstructSettings(args.output, tsdf=tsdf, scaling=args.scaling, scale=args.scale,
                                    depth_source=args.depth_source, evaluate=args.evaluate,
                                    reference_mesh=args.reference_mesh, threshold=args.threshold,
@@ -368,8 +395,17 @@ def _cmd_reconstruct(args: argparse.Namespace) -> int:
     return 0
 
 
+def _check_suffix(path: Path, suffix: str, option: str, what: str) -> None:
+    """A file name whose extension says another format than the one written → UsageError (a PLY named
+    .png would be opened as an image)."""
+    if path.suffix.lower() != suffix:
+        raise UsageError(f"{option} {path}: {what} is written as {suffix}, so the name must end in {suffix}")
+
+
 def _fail(command: str, message: str, code: int) -> int:
-    text = " ".join(str(message).split())  # exactly one line
+    from f2depth.params import MAX_LINE, clip
+
+    text = clip(" ".join(str(message).split()), MAX_LINE)  # exactly one line, of a readable length
     sys.stderr.write(f"f2depth {command}: error: {text}\n")
     return code
 
@@ -386,7 +422,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     from f2depth.signals import Terminated, sigterm_as_interrupt
 
     try:
-        threads.use(args.threads)
+        threads.use(args.threads, follow_free_cores=True)  # inference: the count changes no result
         with sigterm_as_interrupt():  # SIGTERM ends the run as Ctrl-C does
             return args.func(args)
     except UsageError as exc:

@@ -5,6 +5,7 @@ an epoch, one step, its optimiser, and the per-epoch hooks.
 **Epochs** are numbered from 1 (a history row ``{"epoch": 0, ...}`` may hold the untrained network's
 validation). Each row holds the mean of every step statistic over the steps taken, ``steps``,
 ``skipped_steps``, ``seconds`` (training time of the epoch) and what the ``end_epoch`` hook adds.
+:func:`write_history` writes them as CSV, one file per group of columns measured on the same epochs.
 
 **Non-finite policy** (all three trainers). A step whose loss is NaN or infinite raises
 ``FloatingPointError`` before any update (depth training: ``NonFiniteLossError`` naming the term; under DDP
@@ -54,8 +55,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from f2depth import threads
-from f2depth.io import csv_text, torch_save, write_text
+from f2depth.io import csv_text, damaged_weights, torch_save, weights_digest, write_text
 
 FORMAT = "f2depth.train_state"
 VERSION = 2
@@ -164,9 +164,12 @@ def save_state(path: str | os.PathLike, *, run: str, fingerprint: str, epoch: in
     """Write the state after ``epoch`` finished epochs (atomically: a crash leaves the previous file)."""
     states = {name: {k: v.detach().cpu() for k, v in p.state_dict().items()}
               if isinstance(p, torch.nn.Module) else p.state_dict() for name, p in parts.items()}
+    digests = {name: weights_digest(states[name]) for name, part in parts.items()
+               if isinstance(part, torch.nn.Module)}  # load_state refuses a damaged file
     torch_save(path, {"format": FORMAT, "version": VERSION, "run": run, "fingerprint": str(fingerprint),
                       "fingerprint_parts": dict(getattr(fingerprint, "parts", {})),
-                      "epoch": int(epoch), "history": [dict(r) for r in history], "parts": states})
+                      "epoch": int(epoch), "history": [dict(r) for r in history], "parts": states,
+                      "weights_sha256": digests})
 
 
 def load_state(path: str | os.PathLike, expected_fingerprint: str) -> tuple[dict[str, Any] | None, str]:
@@ -183,6 +186,13 @@ def load_state(path: str | os.PathLike, expected_fingerprint: str) -> tuple[dict
     if state.get("fingerprint") != expected_fingerprint:
         return None, (f"{p} belongs to a run with other {_changed(state, expected_fingerprint)}; "
                       "starting afresh")
+    digests, parts = state.get("weights_sha256") or {}, state.get("parts")
+    for name, digest in dict(digests).items():  # states written before the digests existed have none
+        weights = parts.get(name) if isinstance(parts, dict) else None
+        damage = damaged_weights(f"{p} ({name})", {"weights_sha256": digest, "state_dict": weights},
+                                 "starting afresh")
+        if damage:
+            return None, damage
     return state, ""
 
 
@@ -212,8 +222,19 @@ def history_csv(rows: Iterable[Mapping[str, Any]], columns: Iterable[str]) -> st
                               for r in cells))
 
 
+def measured_rows(rows: Iterable[Mapping[str, Any]], columns: Iterable[str]) -> list[Mapping[str, Any]]:
+    """The rows with a value in one of ``columns`` other than ``epoch``: the epochs that measured them."""
+    names = [c for c in columns if c != "epoch"]
+    return [row for row in rows if any(row.get(c) is not None for c in names)]
+
+
 def write_history(path: str | os.PathLike, rows: Iterable[Mapping[str, Any]], columns: Iterable[str]) -> None:
-    write_text(path, history_csv(rows, columns))
+    """A history file: ``columns`` of the rows that measured one of them (:func:`measured_rows`). A trainer
+    puts what it measures every epoch in one file and what it measures on some epochs only (validation)
+    in another, so that no row has a gap where a curve would fall (DVC's plots draw an empty cell as 0);
+    a column stays empty on every row only where the run never measures it (a term the variant is without)."""
+    columns = list(columns)
+    write_text(path, history_csv(measured_rows(rows, columns), columns))
 
 
 @dataclass
@@ -275,7 +296,6 @@ class EpochLoop:
             bar = tqdm(batches(epoch), desc=f"{self.run} {epoch}/{self.epochs}", leave=False,
                        disable=not (self.progress and self.main))
             for batch in bar:
-                threads.adapt()
                 try:
                     stats = step(batch)
                 except FloatingPointError as exc:

@@ -33,8 +33,96 @@ class _DuplicateKey(Exception):
         self.key, self.first, self.second = key, first, second
 
 
-class _UniqueKeyLoader(yaml.SafeLoader):
-    """PyYAML's safe loader, except that a key given twice in one mapping is an error (PyYAML keeps the
+#: The most values (scalars, lists and mappings, each alias counted as what it stands for) a YAML document
+#: f2depth reads may expand to: params.yaml has about 500, dvc.yaml about 1000. A "billion laughs" file of
+#: 22 KB (aliases of aliases) expands to billions, and whatever walks it (a message, MLflow's log_params,
+#: json) takes gigabytes.
+MAX_YAML_VALUES = 100_000
+#: Values quoted in messages are cut to this many characters (:func:`short`), whole error lines to MAX_LINE.
+MAX_QUOTED, MAX_LINE = 240, 1000  # a long path stays whole; a 34 MB value does not
+
+
+class YamlBomb(yaml.YAMLError):
+    """A YAML document whose aliases expand beyond :data:`MAX_YAML_VALUES` values, or refer to themselves;
+    ``problem`` says which, ``problem_mark`` where."""
+
+    def __init__(self, problem: str, mark: Any = None) -> None:
+        super().__init__(problem)
+        self.problem, self.problem_mark = problem, mark
+
+
+def expanded_values(node: yaml.Node, limit: int = MAX_YAML_VALUES) -> int:
+    """How many values the composed YAML ``node`` stands for once every alias is expanded (a scalar is 1, a
+    list or mapping 1 + its items'); each distinct node is counted once, so a bomb costs its file's size.
+    More than ``limit``, or a node inside itself → :class:`YamlBomb`."""
+    sizes: dict[int, int] = {}
+    on_path: set[int] = set()
+    stack: list[tuple[yaml.Node, bool]] = [(node, False)]
+    while stack:
+        current, done = stack.pop()
+        key = id(current)
+        if done:
+            on_path.discard(key)
+            children = _children(current)
+            sizes[key] = 1 + sum(sizes[id(c)] for c in children)
+            if sizes[key] > limit:
+                raise YamlBomb(f"its aliases (*name) expand to more than {limit} values, a 'billion laughs' "
+                               "bomb; write the values out", current.start_mark)
+            continue
+        if key in sizes:
+            continue
+        if key in on_path:
+            raise YamlBomb("an alias (*name) refers to the value it is in", current.start_mark)
+        on_path.add(key)
+        stack.append((current, True))
+        stack.extend((c, False) for c in _children(current) if id(c) not in sizes)
+    return sizes[id(node)]
+
+
+def _children(node: yaml.Node) -> list[yaml.Node]:
+    if isinstance(node, yaml.SequenceNode):
+        return list(node.value)
+    if isinstance(node, yaml.MappingNode):
+        return [n for pair in node.value for n in pair]
+    return []
+
+
+class BoundedLoader(yaml.SafeLoader):
+    """PyYAML's safe loader for every YAML file f2depth reads (params files, camera files, dvc.yaml): a
+    document whose aliases expand beyond :data:`MAX_YAML_VALUES` values or refer to themselves is refused
+    (:class:`YamlBomb`) before anything is built from it."""
+
+    def construct_document(self, node: yaml.Node) -> Any:
+        expanded_values(node)
+        return super().construct_document(node)
+
+
+def load_yaml(text: str | Any, loader: type[yaml.SafeLoader] = BoundedLoader) -> Any:
+    """YAML text (or an open file) → Python values with :class:`BoundedLoader` (or a subclass ``loader``);
+    raises ``yaml.YAMLError`` (:class:`YamlBomb` for a bomb)."""
+    return yaml.load(text, Loader=loader)  # noqa: S506 - a SafeLoader subclass
+
+
+def clip(text: str, limit: int = MAX_QUOTED) -> str:
+    """``text`` cut to at most ``limit`` characters (with "…") for a message."""
+    return text if len(text) <= limit else text[:limit - 1] + "…"
+
+
+def short(value: Any, limit: int = MAX_QUOTED) -> str:
+    """``repr(value)`` for a message, at most ``limit`` characters (cut with "…"); never builds the whole
+    repr of a huge value."""
+    import reprlib
+
+    cut = reprlib.Repr()
+    cut.fillvalue = "…"  # Python ≥ 3.11 (3.10 writes "...")
+    cut.maxstring = cut.maxother = limit
+    cut.maxlist = cut.maxtuple = cut.maxdict = cut.maxset = 8
+    cut.maxlevel = 3
+    return clip(cut.repr(value), limit)
+
+
+class _UniqueKeyLoader(BoundedLoader):
+    """:class:`BoundedLoader`, except that a key given twice in one mapping is an error (PyYAML keeps the
     last one silently; DVC refuses the file). Merge keys (``<<``) may still be overridden."""
 
     def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
@@ -58,11 +146,15 @@ def load(path: str | os.PathLike = DEFAULT_PARAMS) -> dict[str, Any]:
         raise ParamsError(f"{p}: parameter file not found (run from the repository root or pass its path)")
     with p.open() as fh:
         try:
-            data = yaml.load(fh, Loader=_UniqueKeyLoader) or {}
+            data = load_yaml(fh, _UniqueKeyLoader) or {}
         except _DuplicateKey as dup:
             raise ParamsError(f"{p}: key '{dup.key}' is given twice, on lines {dup.first} and {dup.second} "
                               "(YAML would keep the second silently, DVC refuses the file); keep one"
                               ) from None
+        except YamlBomb as bomb:
+            mark = bomb.problem_mark
+            where = f" line {mark.line + 1}" if mark is not None else ""
+            raise ParamsError(f"{p}:{where}: {bomb.problem}") from None
         except yaml.YAMLError as exc:
             mark = getattr(exc, "problem_mark", None)
             where = f" line {mark.line + 1}" if mark is not None else ""
@@ -95,7 +187,7 @@ def device_problem(name: str) -> str | None:
     """Why ``name`` is no device of this machine (one line, ending in the fix), or None when it is one:
     the grammar :data:`DEVICES`, then what this machine's torch offers (CUDA and its device count, mps)."""
     if not _DEVICE.fullmatch(name):
-        return f"unknown device {name!r}: use {DEVICES}"
+        return f"unknown device {short(name)}: use {DEVICES}"
     if name in ("auto", "cpu"):
         return None
     import torch
@@ -156,7 +248,7 @@ def section(params: dict[str, Any], key: str, cls: type, *more: type, **given: A
 
 def value(params: dict[str, Any], key: str, kind: Any, **rules: Any) -> Any:
     """The params value ``key`` (dotted) checked against the type ``kind`` and :data:`RULES`
-    (``value(p, "loss_weights.feature", float, min=0)``)."""
+    (``value(p, "train_depth.epochs", int, min=1)``)."""
     return _check(_file(params), key, get(params, key), kind, rules)
 
 
@@ -189,13 +281,25 @@ def reject_unknown(path: str | os.PathLike, key: str, names: Any, known: Any, wh
                       + ("" if hints else f"; known: {', '.join(sorted(known))}"))
 
 
+def check_field(cls: type, name: str, raw: Any, label: str) -> Any:
+    """``raw`` checked as field ``name`` of the params dataclass ``cls`` (its type and :data:`RULES`), for a
+    value that came from elsewhere (a command-line flag): a ParamsError reads ``<label> is <raw>; set it to
+    ...`` (``label`` e.g. ``--min-motion``), naming no params file."""
+    f = next(f for f in dataclasses.fields(cls) if f.name == name)
+    return _check("", label, raw, typing.get_type_hints(cls)[name], f.metadata)
+
+
+def _at(path: str, key: str) -> str:
+    return f"{path}: {key}" if path else key
+
+
 def _file(params: dict[str, Any]) -> str:
     return str(params.get("_file", DEFAULT_PARAMS))
 
 
 def _build(path: str, key: str, node: Any, classes: tuple[type, ...], given: dict[str, Any]) -> list[Any]:
     if not isinstance(node, dict):
-        raise ParamsError(f"{path}: {key}: expected a section of keys, got {node!r}")
+        raise ParamsError(f"{path}: {key}: expected a section of keys, got {short(node)}")
     fields = {f.name: (cls, f) for cls in reversed(classes) for f in dataclasses.fields(cls)
               if f.init and not f.metadata.get("fixed")}
     if set(given) - set(fields):
@@ -228,7 +332,7 @@ def _check(path: str, key: str, raw: Any, kind: Any, rules: Any = None) -> Any:
     for rule, limit in (rules or {}).items():
         test, text = RULES[rule]
         if v is not None and not test(v, limit):
-            raise ParamsError(f"{path}: {key} is {v!r}; set it to {text.format(limit)}")
+            raise ParamsError(f"{_at(path, key)} is {short(v)}; set it to {text.format(limit)}")
     return v
 
 
@@ -236,7 +340,7 @@ def _coerce(path: str, key: str, raw: Any, kind: Any) -> Any:
     origin, args = typing.get_origin(kind), typing.get_args(kind)
 
     def bad(expected: str) -> ParamsError:
-        return ParamsError(f"{path}: {key} is {raw!r}; set it to {expected}")
+        return ParamsError(f"{_at(path, key)} is {short(raw)}; set it to {expected}")
 
     if kind is Any:
         return raw
@@ -317,7 +421,7 @@ def pretrained_starts(params: dict[str, Any], keys: tuple[str, ...]) -> dict[str
     path = _file(params)
     allow = get(params, "allow_random_init")
     if not isinstance(allow, bool):
-        raise ParamsError(f"{path}: allow_random_init must be true or false, got {allow!r}")
+        raise ParamsError(f"{path}: allow_random_init must be true or false, got {short(allow)}")
     out: dict[str, str | None] = {}
     for key in keys:
         file = get(params, key, None)
@@ -329,6 +433,7 @@ def pretrained_starts(params: dict[str, Any], keys: tuple[str, ...]) -> dict[str
             out[key] = None
             continue
         if not Path(file).is_file():
-            raise ParamsError(f"{path}: {key} = {file}: file not found; it must be {PRETRAINED_STARTS[key]}")
+            raise ParamsError(f"{path}: {key} = {clip(str(file))}: file not found; it must be "
+                              f"{PRETRAINED_STARTS[key]}")
         out[key] = str(file)
     return out

@@ -18,6 +18,7 @@ from typing import Any
 from ruamel.yaml import YAML
 
 from f2depth import io as fio
+from f2depth import params as P
 
 PROFILES = Path("configs/profiles.yaml")
 
@@ -32,7 +33,17 @@ def _yaml() -> YAML:
     return y
 
 
+def _checked(path: Path) -> None:
+    """Read ``path`` as the stages read YAML first (f2depth.params.load: a key given twice or aliases that
+    expand to a bomb end the command with that one line)."""
+    try:
+        P.load(path)
+    except P.ParamsError as exc:
+        raise SystemExit(str(exc)) from None
+
+
 def load_profiles(path: Path = PROFILES) -> dict[str, dict[str, Any]]:
+    _checked(path)
     with path.open() as fh:
         return dict(_yaml().load(fh))
 
@@ -42,6 +53,7 @@ def apply(name: str, params_path: Path = Path("params.yaml"), profiles_path: Pat
     profiles = load_profiles(profiles_path)
     if name not in profiles:
         raise SystemExit(f"{profiles_path}: no profile '{name}' (have: {', '.join(profiles)})")
+    _checked(params_path)
     y = _yaml()
     with params_path.open() as fh:
         doc = y.load(fh)

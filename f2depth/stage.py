@@ -16,14 +16,14 @@ import sys
 from collections.abc import Callable, Sequence
 
 from f2depth.data.errors import DataError
-from f2depth.params import ParamsError
+from f2depth.params import MAX_LINE, ParamsError, clip
 from f2depth.signals import Terminated, sigterm_as_interrupt
 
 
 def _say(name: str, text: str) -> None:
     """One line on stderr, from rank 0 only: under ``torchrun`` every rank fails alike."""
     if os.environ.get("RANK", "0") == "0":
-        sys.stderr.write(f"{name}: {text}\n")
+        sys.stderr.write(f"{name}: {clip(text, MAX_LINE)}\n")
 
 
 def run_stage(name: str, main: Callable[[list[str]], object], argv: Sequence[str]) -> None:

@@ -16,11 +16,13 @@ stage and the CLI take one budget:
 
 Other jobs on the same CPUs: beside one busy process a 2-thread torch step on 2 cores ran 3.3× slower,
 a 1-thread step 1.02× (docs/experiments/2026-12-04-shared-cpu.md), because every parallel operation
-waits for the thread that is not running. So when the budget is automatic (no ``threads``, no
-``$OMP_NUM_THREADS``), :func:`use` also starts a :class:`FreeCores` watch and :func:`adapt`, called
-between training steps and inference batches, sets torch's count to the cores the other processes
-leave free (measured from ``/proc/stat`` every 2 s, less this process's own CPU time). A fixed count
-keeps reruns bit-identical; an adaptive one may change float summation order between runs.
+waits for the thread that is not running. Where the thread count cannot change a result — inference:
+a forward pass gives the same bits at any count, a backward pass does not (tests/test_threads.py) —
+``use(..., follow_free_cores=True)`` (evaluate, the CLI) with an automatic budget (no ``threads``, no
+``$OMP_NUM_THREADS``) also starts a :class:`FreeCores` watch, and :func:`adapt`, called between inference
+batches, sets torch's count to the cores the other processes leave free (measured from ``/proc/stat`` every
+2 s, less this process's own CPU time). Training stages keep the count :func:`use` set for the whole run,
+so the same inputs give the same weights whatever else the machine runs.
 """
 
 from __future__ import annotations
@@ -152,9 +154,10 @@ class FreeCores:
 _free: FreeCores | None = None
 
 
-def use(threads: int | None = None, *, loader_workers: int = 0) -> int:
+def use(threads: int | None = None, *, loader_workers: int = 0, follow_free_cores: bool = False) -> int:
     """Size torch's and OpenCV's pools to the :func:`budget` less ``loader_workers`` (≥ 1) → torch's count.
-    With an automatic budget of more than one thread, :func:`adapt` then follows the free cores."""
+    With ``follow_free_cores`` (only where the count cannot change a result: inference) and an automatic
+    budget of more than one thread, :func:`adapt` then follows the free cores; otherwise the count stays."""
     import cv2
     import torch
 
@@ -162,12 +165,13 @@ def use(threads: int | None = None, *, loader_workers: int = 0) -> int:
     n = max(1, budget(threads) - loader_workers)
     torch.set_num_threads(n)
     cv2.setNumThreads(n)
-    _free = FreeCores(n, reserved=loader_workers) if automatic(threads) and n > 1 else None
+    follow = follow_free_cores and automatic(threads) and n > 1
+    _free = FreeCores(n, reserved=loader_workers) if follow else None
     return n
 
 
 def adapt() -> int | None:
-    """Between steps or batches: set torch's count to the free cores when :func:`use` started a watch
+    """Between inference batches: set torch's count to the free cores when :func:`use` started a watch
     → the count, or None when the count is fixed."""
     if _free is None:
         return None

@@ -5,6 +5,20 @@ artifacts into MLflow so the UI can compare ablations. Every ``dvc repro`` / ``d
 appears as ONE parent run (keyed by the git commit, the DVC experiment name and the id of the DVC
 process that runs the stages) with one child run per stage (and variant).
 
+What the UI shows (issue 52): the experiment carries MLflow 3's kind tag ``mlflow.experimentKind =
+custom_model_development`` (a machine-learning experiment, not a GenAI one; MLflow 3.17's UI opens it
+on its own "GenAI / Model training" switch instead, see tools/mlflow_compare.py). Each pipeline has a label:
+the DVC experiment's name (``$DVC_EXP_NAME``, set by ``dvc exp run``), else the git commit's short hash,
+with `` #2``, `` #3``, ... for later pipelines of the same label; a child run is named variant first,
+``full · evaluate · <label>`` (``prepare · <label>`` without a variant), so names stay apart in the runs
+list and across experiments (``tags.dvc_stage`` keeps DVC's ``evaluate@full``). The ``train_depth`` and
+``evaluate`` runs carry what the depth model was trained with under the paper's names
+(:func:`trained_params`: ``lambda1``, ``lambda2``, ``lambda3``, ``lambda_rigid`` as the variant applied
+them, ``flow_model``, ``seeds``, ``epochs``, ``variant``); an ``evaluate`` run also logs its
+:data:`HEADLINES`, which MLflow's tables list first. Each depth model file is an external MLflow logged
+model (its bytes stay in DVC's output; :meth:`StageRun.log_model`), the output of its ``train_depth`` run
+and an input of the ``evaluate`` run, which links its results to it.
+
 Tracking URI: ``$MLFLOW_TRACKING_URI`` or ``sqlite:///mlflow.db`` in the repository root.
 Set ``F2DEPTH_MLFLOW=0`` to disable mirroring (the stage still writes its DVC outputs).
 
@@ -19,16 +33,32 @@ Exceptions of the stage's own work are never swallowed.
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import logging
 import os
 import re
 import subprocess
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 EXPERIMENT = "f2depth"
+#: MLflow 3's experiment kind, ``custom_model_development``: machine learning (runs), not GenAI (traces); set
+#: when the experiment is created and on an existing one that says otherwise
+EXPERIMENT_KIND_TAG = "mlflow.experimentKind"
+EXPERIMENT_KIND = "custom_model_development"
 PARENT_KEY_TAG = "f2depth.pipeline_key"
+LABEL_BASE_TAG = "f2depth.pipeline_base"  # the DVC experiment's name or the commit's short hash
+LABEL_TAG = "f2depth.pipeline_label"  # the base, with " #k" for the k-th pipeline of that base
+MODEL_MD5_TAG = "f2depth.model_md5"  # a logged model's file contents (DVC's md5 of the file)
+MODEL_PATH_TAG = "f2depth.model_path"  # where its bytes are: the DVC output, relative to the repository
+EXTERNAL_MODEL_TAG = "mlflow.model.isExternal"  # MLflow 3: a logged model whose artifacts live elsewhere
+#: Headline metrics of a stage's results: MLflow name → path in its metrics file. MLflow's tables sort
+#: names by code point (digits before letters): the leading digit lists them first, NYU, 7-Scenes, Campus.
+HEADLINES: dict[str, dict[str, str]] = {"evaluate": {
+    "1_nyu_delta1": "nyu.a1", "1_nyu_abs_rel": "nyu.abs_rel",
+    "2_sevenscenes_delta1": "sevenscenes.a1", "2_sevenscenes_abs_rel": "sevenscenes.abs_rel",
+    "3_campus_delta1": "campus.a1", "3_campus_abs_rel": "campus.abs_rel"}}
 PROBE_TIMEOUT = 3.0  # seconds to wait for a tracking server's /health before mirroring is given up
 HTTP_RETRIES = "1"
 HTTP_TIMEOUT = "10"
@@ -117,13 +147,43 @@ def metric_name(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9_\-.:/ ]", "_", name)
 
 
+def trained_params(variant: str, weights: Mapping[str, float], flow_model: str | None, epochs: int,
+                   seeds: Sequence[int], without: Sequence[str] = ()) -> dict[str, Any]:
+    """What a depth model was trained with, as its ``train_depth`` and ``evaluate`` runs log it: ``weights``
+    under their params.yaml names (``lambda1``, ``lambda2``, ``lambda3``, ``lambda_rigid``:
+    ``f2depth.train.step.WEIGHT_KEYS``) as the variant applied them (0 for a term it trains ``without``), the
+    flow model file (``"none"``: the P²Net baseline), ``seeds`` (``"0,1"``), ``epochs`` and ``variant``."""
+    return {**weights, "flow_model": flow_model or "none", "seeds": ",".join(str(s) for s in seeds),
+            "epochs": epochs, "variant": variant, "without": ",".join(without) or "none"}
+
+
+def run_name(stage: str, variant: str | None, label: str, seed: int | None = None) -> str:
+    """``full · evaluate · <label>``: the variant first (MLflow's runs list cuts long names at the end),
+    ``seed k`` after the stage when a variant trains several seeds, the pipeline's label last."""
+    what = stage if seed is None else f"{stage} seed {seed}"
+    return " · ".join(part for part in (variant, what, label) if part)
+
+
+def file_md5(path: str | os.PathLike) -> str:
+    """The md5 of a file's contents (what DVC records for a file)."""
+    digest = hashlib.md5()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 22), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
 class StageRun:
     """A handle on the child run of one stage; every method is a no-op when MLflow is disabled, and the
     first MLflow error turns the handle off for good (one warning line, see the module docstring)."""
 
-    def __init__(self, client: Any = None, run_id: str | None = None) -> None:
+    def __init__(self, client: Any = None, run_id: str | None = None, experiment_id: str | None = None,
+                 headline: Mapping[str, str] | None = None) -> None:
         self._client = client
         self.run_id = run_id
+        self.experiment_id = experiment_id
+        self._headline = dict(headline or {})  # MLflow name → path of a headline metric (HEADLINES)
+        self._last_ms = 0
 
     @property
     def active(self) -> bool:
@@ -147,15 +207,20 @@ class StageRun:
             for i in range(0, len(items), 100):
                 self._client.log_batch(self.run_id, params=items[i : i + 100])
 
-    def log_metrics(self, metrics: Mapping[str, Any], step: int | None = None) -> None:
+    def log_metrics(self, metrics: Mapping[str, Any], step: int | None = None,
+                    model_id: str | None = None) -> None:
+        """Every number of ``metrics`` (nested keys joined with ``.``) at ``step``; with ``model_id`` also as
+        that logged model's metrics. Timestamps increase from call to call, so the latest of two values
+        logged at one step is the later call's."""
         if not self.active:
             return
         import time
 
         from mlflow.entities import Metric
 
-        now = int(time.time() * 1000)
-        items = [Metric(metric_name(k), float(v), now, step or 0) for k, v in flatten(metrics).items()
+        now = self._last_ms = max(int(time.time() * 1000), self._last_ms + 1)
+        items = [Metric(metric_name(k), float(v), now, step or 0, model_id=model_id)
+                 for k, v in flatten(metrics).items()
                  if isinstance(v, (int, float)) and not isinstance(v, bool)]
         if items:
             with self._guard():
@@ -166,10 +231,65 @@ class StageRun:
         name, at step = the row's epoch — the one name scheme of every trainer's curves."""
         self.log_metrics({k: v for k, v in row.items() if k != "epoch"}, step=int(row["epoch"]))
 
-    def log_summary(self, metrics: Mapping[str, Any]) -> None:
+    def log_summary(self, metrics: Mapping[str, Any],
+                    models: Mapping[str | None, Mapping[str, Any]] | None = None) -> None:
         """A stage's metrics file (or one seed's part of it): each number under its path in the JSON, keys
-        joined with ``.`` (``finetuned.test.epe_all``) — the one name scheme of every stage's results."""
-        self.log_metrics(metrics)
+        joined with ``.`` (``finetuned.test.epe_all``) — the one name scheme of every stage's results —, and
+        again under its headline name (:data:`HEADLINES`: ``1_nyu_delta1`` = ``nyu.a1``).
+
+        ``models``: logged model id (:meth:`log_model`; None: none) → that model's own results (one seed's
+        part of ``metrics``), linked to the model as its metrics. Several are logged first, so that the run's
+        latest values are ``metrics`` (the mean over seeds); a single one is ``metrics`` itself, which is then
+        linked to its model."""
+        if not self.active:
+            return
+        linked = {m: results for m, results in (models or {}).items() if m is not None}
+        if len(models or {}) > 1:
+            for model_id, results in linked.items():
+                self._log_results(results, model_id)
+        self._log_results(metrics, next(iter(linked)) if len(models or {}) == 1 and linked else None)
+
+    def _log_results(self, metrics: Mapping[str, Any], model_id: str | None) -> None:
+        flat = flatten(metrics)
+        headline = {name: flat[path] for name, path in self._headline.items() if path in flat}
+        self.log_metrics({**headline, **metrics}, model_id=model_id)
+
+    def log_model(self, path: str | os.PathLike, name: str, params: Mapping[str, Any] | None = None,
+                  produced: bool = True) -> str | None:
+        """Link the model file ``path`` (a DVC output) to this run as an MLflow 3 logged model and return its
+        id (None when the mirror is off or there is no such file). Its bytes are not copied: the model is
+        external (``mlflow.model.isExternal``), tagged with the file's path and md5 (:data:`MODEL_PATH_TAG`,
+        :data:`MODEL_MD5_TAG`), ``params`` its params. ``produced`` (the ``train_depth`` run): a new model,
+        the run's output. Else (the ``evaluate`` run): the run's input, the model its training logged with
+        the same md5, or a new one when the store has none (training ran with the mirror off)."""
+        p = Path(path)
+        if not self.active or not p.is_file():
+            return None
+        from mlflow.entities import LoggedModelInput, LoggedModelOutput
+
+        root = Path(os.environ.get("DVC_ROOT", ".")).resolve()
+        where = p.resolve()
+        where = where.relative_to(root) if where.is_relative_to(root) else where
+        with self._guard():
+            digest = file_md5(p)
+            found = [] if produced else self._client.search_logged_models(
+                [self.experiment_id], filter_string=f"tags.`{MODEL_MD5_TAG}` = '{digest}'", max_results=1)
+            if found:
+                model_id = found[0].model_id
+            else:
+                model = self._client.create_logged_model(
+                    self.experiment_id, name=name, source_run_id=self.run_id, model_type="f2depth.depth",
+                    params={k: str(v)[:6000] for k, v in flatten(params or {}).items()},
+                    tags={EXTERNAL_MODEL_TAG: "true", MODEL_PATH_TAG: where.as_posix(),
+                          MODEL_MD5_TAG: digest})
+                model_id = model.model_id
+                self._client.finalize_logged_model(model_id, "READY")
+            if produced:
+                self._client.log_outputs(self.run_id, [LoggedModelOutput(model_id, step=0)])
+            else:
+                self._client.log_inputs(self.run_id, models=[LoggedModelInput(model_id)])
+            return model_id
+        return None
 
     def log_artifact(self, path: str | os.PathLike, artifact_path: str | None = None) -> None:
         """Upload a file (into ``artifact_path``) or a folder (into ``artifact_path``, default its name)."""
@@ -197,32 +317,54 @@ class StageRun:
                     self._client.set_terminated(parent_id, status=status)
 
 
-def _parent_run(client: Any, experiment_id: str, commit: str, exp_name: str) -> str:
+def _parent_run(client: Any, experiment_id: str, commit: str, exp_name: str) -> tuple[str, str]:
+    """(the id, the label) of this pipeline's parent run, created by its first stage (module docstring)."""
     dvc_pid = _dvc_process_id()
     key = f"{commit}:{exp_name}:{dvc_pid if dvc_pid is not None else os.getpid()}"
     found = client.search_runs([experiment_id], filter_string=f"tags.`{PARENT_KEY_TAG}` = '{key}'",
                                max_results=1)
     if found:
-        return found[0].info.run_id
-    run = client.create_run(experiment_id, run_name=f"{exp_name}@{commit[:7]}", tags={
-        PARENT_KEY_TAG: key, "git_commit": commit, "dvc_experiment": exp_name, "kind": "pipeline"})
-    return run.info.run_id
+        return found[0].info.run_id, found[0].data.tags.get(LABEL_TAG, exp_name)
+    base = (exp_name if "DVC_EXP_NAME" in os.environ else commit[:7] if commit != "unknown"
+            else exp_name).replace("'", "")
+    earlier = client.search_runs([experiment_id], filter_string=f"tags.`{LABEL_BASE_TAG}` = '{base}'",
+                                 max_results=10000)
+    label = f"{base} #{len(earlier) + 1}" if earlier else base
+    run = client.create_run(experiment_id, run_name=f"pipeline · {label}", tags={
+        PARENT_KEY_TAG: key, LABEL_BASE_TAG: base, LABEL_TAG: label, "git_commit": commit,
+        "dvc_experiment": exp_name, "kind": "pipeline"})
+    return run.info.run_id, label
+
+
+def _experiment(client: Any) -> str:
+    """The id of the ``f2depth`` experiment, created with (or given) MLflow 3's machine-learning kind."""
+    exp = client.get_experiment_by_name(EXPERIMENT)
+    if exp is None:
+        return client.create_experiment(EXPERIMENT, tags={EXPERIMENT_KIND_TAG: EXPERIMENT_KIND})
+    if exp.tags.get(EXPERIMENT_KIND_TAG) != EXPERIMENT_KIND:
+        client.set_experiment_tag(exp.experiment_id, EXPERIMENT_KIND_TAG, EXPERIMENT_KIND)
+    return exp.experiment_id
 
 
 @contextlib.contextmanager
 def stage_run(stage: str, params: Mapping[str, Any], variant: str | None = None,
-              sections: tuple[str, ...] = (), closes_pipeline: bool = False) -> Iterator[StageRun]:
-    """Open the child run of ``stage`` (and ``variant``) under this pipeline's parent run.
+              sections: tuple[str, ...] = (), closes_pipeline: bool = False,
+              run_params: Mapping[str, Any] | None = None, seed: int | None = None) -> Iterator[StageRun]:
+    """Open the child run of ``stage`` (and ``variant``; ``seed``: one of several a variant trains) under
+    this pipeline's parent run, named by :func:`run_name`.
 
     ``params`` is the whole params.yaml dict; ``sections`` selects what is logged (default: the
-    stage's own section plus the top-level scalars such as the lambdas). A failing stage marks the
+    stage's own section plus the top-level scalars such as the lambdas). ``run_params`` are logged at the
+    top level too and replace a top-level key of the same name (:func:`trained_params`: ``lambda3`` is 0 in
+    a run of a variant without L_feature; MLflow keeps a param's first value). A failing stage marks the
     parent run FAILED; the last stage of the pipeline (``closes_pipeline``, the ``tables`` stage) marks it
     FINISHED, so the parent runs of completed ``dvc repro`` / ``dvc exp run`` calls do not stay RUNNING.
     """
-    handle, parent_id = _open_run(stage, variant) if enabled() else (StageRun(), None)
+    handle, parent_id = _open_run(stage, variant, seed) if enabled() else (StageRun(), None)
     chosen = sections or (stage,)
     logged = {k: v for k, v in params.items() if not isinstance(v, Mapping) and not k.startswith("_")}
     logged.update({s: params[s] for s in chosen if s in params})
+    logged.update(run_params or {})
     handle.log_params(logged)
     status = "FAILED"
     try:
@@ -232,7 +374,7 @@ def stage_run(stage: str, params: Mapping[str, Any], variant: str | None = None,
         handle.terminate(status, parent_id if status == "FAILED" or closes_pipeline else None)
 
 
-def _open_run(stage: str, variant: str | None) -> tuple[StageRun, str | None]:
+def _open_run(stage: str, variant: str | None, seed: int | None = None) -> tuple[StageRun, str | None]:
     """(the child run of ``stage`` under this pipeline's parent, the parent's id), or an inactive handle
     and None when the tracking store cannot be reached (one warning line)."""
     uri = tracking_uri()
@@ -248,19 +390,18 @@ def _open_run(stage: str, variant: str | None) -> tuple[StageRun, str | None]:
     logging.getLogger("alembic").setLevel(logging.WARNING)
     try:
         client = MlflowClient(tracking_uri=uri)
-        exp = client.get_experiment_by_name(EXPERIMENT)
-        experiment_id = exp.experiment_id if exp else client.create_experiment(EXPERIMENT)
+        experiment_id = _experiment(client)
         commit = git_commit(os.environ.get("DVC_ROOT", "."))
         exp_name = os.environ.get("DVC_EXP_NAME", "workspace")
-        parent_id = _parent_run(client, experiment_id, commit, exp_name)
-        name = os.environ.get("DVC_STAGE") or (f"{stage}@{variant}" if variant else stage)
-        run = client.create_run(experiment_id, run_name=name, tags={
-            "mlflow.parentRunId": parent_id, "git_commit": commit, "dvc_experiment": exp_name, "stage": stage,
-            "variant": variant or ""})
+        parent_id, label = _parent_run(client, experiment_id, commit, exp_name)
+        tags = {"mlflow.parentRunId": parent_id, "git_commit": commit, "dvc_experiment": exp_name,
+                "dvc_stage": os.environ.get("DVC_STAGE") or (f"{stage}@{variant}" if variant else stage),
+                "stage": stage, "variant": variant or "", LABEL_TAG: label}
+        run = client.create_run(experiment_id, run_name=run_name(stage, variant, label, seed), tags=tags)
     except Exception as exc:  # noqa: BLE001 — the mirror must never break a stage
         mirror_off(_first_line(exc))
         return StageRun(), None
-    return StageRun(client, run.info.run_id), parent_id
+    return StageRun(client, run.info.run_id, experiment_id, HEADLINES.get(stage)), parent_id
 
 
 def mirror_stage(stage: str, params: Mapping[str, Any], metrics: Mapping[str, Any],

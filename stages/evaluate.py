@@ -17,7 +17,8 @@ model is timed at `evaluate.timing_height` × `timing_width` (batch 1, median of
 - reports/eval/NAME/: details.json (per-scene rows, std over images, settings, per seed),
   <set>.csv (per-image metrics of every seed, ± PP) and figures.npz (the first seed's predictions on a few
   test images, for the tables stage's figures);
-and mirrors the numbers to an MLflow child run `evaluate@NAME`.
+and mirrors the numbers to an MLflow child run `NAME · evaluate · <pipeline>` (f2depth/tracking.py), whose
+input is each seed's model as an MLflow logged model (the one its train_depth run logged).
 """
 
 import argparse
@@ -35,13 +36,12 @@ from f2depth import threads, tracking
 from f2depth.data.errors import DataError
 from f2depth.data.nyu_labeled import GT_KEYS
 from f2depth.data.samples import limit
+from f2depth.data.writable import check_output_folder
 from f2depth.depth import model_from_checkpoint, read_checkpoint
 from f2depth.eval import registry
 from f2depth.eval.suite import SuiteConfig, evaluate_model, metrics_document, model_disparity, rows_csv
 from f2depth.io import save_npz, write_json, write_text
 from f2depth.stage import run_stage
-
-TRAINED_KEYS = ("flow_model", "weights", "without", "epochs", "batch_size", "seeds")
 
 
 @dataclass(frozen=True)
@@ -94,8 +94,11 @@ def main(argv: list[str]) -> None:
     ap.add_argument("--reports", default="reports/eval", help="folder of <variant>/ (details, CSV, figures)")
     args = ap.parse_args(argv[1:])
     p = P.load(args.params)
-    threads.use(P.threads(p))
+    threads.use(P.threads(p), follow_free_cores=True)  # inference only: the count changes no result
     cfg, stage = config_from_params(p)
+    for folder, option in ((Path(args.metrics), "--metrics"), (Path(args.reports) / args.variant,
+                                                               "--reports")):
+        check_output_folder(folder, option)  # before any work: scoring takes minutes
     if args.variant not in P.get(p, "variants"):
         raise P.ParamsError(f"{p['_file']}: no variant '{args.variant}' under `variants`")
     seeds = P.value(p, "train_depth.seeds", list[int])
@@ -106,18 +109,28 @@ def main(argv: list[str]) -> None:
         raise DataError(", ".join(missing), "not found", f"run `dvc repro train_depth@{args.variant}` "
                         "(train_depth.seeds lists the seeds to evaluate)")
     # every seed's model before any work: a file that does not fit ends the stage before minutes of scoring
-    models, trained = [], None
+    models, trained, weight_keys = [], None, {}
     for f in files:  # each file read once; the first seed's training params go to the metrics file
         ckpt = read_checkpoint(f)
         models.append(model_from_checkpoint(ckpt, f, cfg.device, cfg.decoder_upsample).eval())
-        trained = ckpt["params"] if trained is None else trained
+        if trained is None:  # and the params key of each loss term's weight (older checkpoints: none)
+            trained, weight_keys = ckpt["params"], ckpt.get("weight_keys", {})
     sets = load_sets(p, cfg.datasets, stage.max_images)
     cfg = replace(cfg, datasets=tuple(sets))  # the sets present (absent ones were skipped with a line)
     out_dir = Path(args.reports) / args.variant
     t0 = time.perf_counter()
     headlines, details, rows, kept = [], {}, {}, None
-    with tracking.stage_run("evaluate", p, variant=args.variant, sections=("evaluate",)) as run:
+    weights = {weight_keys.get(term, term): w for term, w in (trained.get("weights") or {}).items()}
+
+    def trained_with(some: list[int]) -> dict:  # the paper's names of what the models were trained with
+        return tracking.trained_params(args.variant, weights, trained.get("flow_model"),
+                                       trained.get("epochs"), some, trained.get("without") or ())
+
+    with tracking.stage_run("evaluate", p, variant=args.variant, sections=("evaluate",),
+                            run_params=trained_with(seeds)) as run:
         run.set_tags({"seeds": seeds})
+        model_ids = [run.log_model(f, f"depth_{args.variant}-seed{s}", trained_with([s]), produced=False)
+                     for f, s in zip(files, seeds)]  # the logged models their training runs made
         timing = None  # timed with the first seed's model: every seed's network is the same
         for seed, model in zip(seeds, models):
             net_hw = (model.config.height, model.config.width)
@@ -141,9 +154,8 @@ def main(argv: list[str]) -> None:
             write_text(out_dir / f"{name}.csv", rows_csv(items))
         save_npz(out_dir / "figures.npz", **(kept or {}))
         write_json(Path(args.metrics) / f"{args.variant}.json", doc)
-        run.log_summary(doc)
-        if run.active:  # what the variant was trained with, for comparing runs in MLflow
-            run.log_params({"test_set_sizes": sizes, "trained": {k: trained.get(k) for k in TRAINED_KEYS}})
+        run.log_summary(doc, {m: doc["per_seed"][f"seed{s}"] for m, s in zip(model_ids, seeds)})
+        run.log_params({"test_set_sizes": sizes})
         run.log_artifact(Path(args.metrics) / f"{args.variant}.json")
         run.log_artifact(out_dir / "details.json")
     print(f"evaluate[{args.variant}]: {len(seeds)} seed(s), test sets {sizes}, mean over seeds: "

@@ -57,7 +57,7 @@ class FinetuneStage:
 
 
 def config_from_params(p: dict, loss: str = "patch") -> tuple[FinetuneConfig, FinetuneStage]:
-    smooth = P.value(p, "loss_weights.flow_smooth", float, min=0)
+    smooth = P.value(p, "lambda_flow_smooth", float, min=0)
     return P.section(p, "flow_finetune", FinetuneConfig, FinetuneStage, loss=loss,
                      seed=P.value(p, "seed", int), smooth_weight=smooth)
 

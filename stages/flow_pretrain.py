@@ -15,7 +15,9 @@ Either way the last `holdout` sequences of `data.sintel` are never trained on. W
 the network's name), metrics/flow_pretrain.json (EPE, magnitude ratio Σ|flow|/Σ|gt|, mean cosine to the
 true flow and swap consistency of the model, beside zero flow, on the held-out sequences, on the held-out
 generated pairs (chairs) and, with `eval_prepared`, on the prepared pairs with ground truth),
-metrics/flow_pretrain/history.csv (one row per training epoch; only the header for an imported model) and
+metrics/flow_pretrain/history.csv (one row per training epoch; only the header for an imported model),
+metrics/flow_pretrain/phase_b.csv (the chairs route's phase B epochs: training EPE, held-out swap
+consistency; only the header otherwise) and
 colour-wheel figures into `figure_dir`.
 """
 
@@ -43,6 +45,7 @@ from f2depth.synth.chairs import texture_pool
 
 METRICS = "metrics/flow_pretrain.json"
 HISTORY = "metrics/flow_pretrain/history.csv"
+PHASE_B = "metrics/flow_pretrain/phase_b.csv"
 
 
 @dataclass(frozen=True)
@@ -145,11 +148,14 @@ def main(argv: list[str]) -> None:
                                                     stage.eval_prepared_pairs, device, figures, n_fig)
         metrics["seconds"] = round(time.perf_counter() - t0, 1)
         columns = chairs_route.HISTORY_COLUMNS if metrics["source"] == "chairs" else HISTORY_COLUMNS
-        write_history(HISTORY, metrics.get("training", {}).get("history", []), columns)
+        rows = metrics.get("training", {}).get("history", [])
+        write_history(HISTORY, rows, columns)
+        write_history(PHASE_B, rows, chairs_route.PHASE_B_COLUMNS)
         write_json(METRICS, metrics)
         run.log_summary(metrics)
         run.log_artifact(stage.model)
         run.log_artifact(HISTORY)
+        run.log_artifact(PHASE_B)
         run.log_artifact(figures, "figures")
     clear_resume(stage.resume_dir)
     for name, res in metrics.items():

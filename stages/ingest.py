@@ -38,12 +38,13 @@ def main(argv: list[str]) -> None:
     camera = P.value(p, "data.video_camera", str | None)
     if training_video(p).root != out and not holds_media(video):
         # the NYU-raw route without clips (data_source: real): nothing to check, nothing anyone reads
-        with atomic_dir(out) as tmp:
+        with atomic_dir(out, "ingest", owned=True) as tmp:
             write_text(tmp / "README.txt", f"{video} holds no videos or images: nothing ingested\n")
         write_json(METRICS, {"scenes": 0, "sampled": 0, "kept": 0, "static": 0, "blur": 0})
         print(f"ingest: {video} holds no videos or images and train_source is not video: nothing to ingest")
         return
-    summary = ingest([video], out, config, camera_file=camera, progress=True)
+    summary = ingest([video], out, config, camera_file=camera, progress=True, option="data.ingested",
+                     owned=True)  # DVC's output: DVC removes it itself before the stage runs
     scenes = summary["scenes"]
     metrics = {"scenes": len(scenes), "sampled": sum(s["sampled"] for s in scenes.values()),
                "kept": sum(s["kept"] for s in scenes.values()),
@@ -56,6 +57,8 @@ def main(argv: list[str]) -> None:
     write_json(METRICS, metrics)
     tracking.mirror_stage("ingest", p, {k: metrics[k] for k in ("scenes", "sampled", "kept", "static", "blur",
                                                                "seconds")})
+    for text in summary["warnings"]:  # e.g. a damaged video ingested from the frames that decode
+        print(f"ingest: warning: {text}", file=sys.stderr)
     cam = summary["camera"]
     print(f"ingest: {metrics['scenes']} scene(s) of {video}, kept {metrics['kept']} of {metrics['sampled']} "
           f"frames ({metrics['static']} static, {metrics['blur']} blurred dropped), {cam['width']}×"

@@ -3,16 +3,17 @@
 Usage: python stages/train_depth.py --variant NAME [--params params.yaml] [--no-resume]
        torchrun --nproc_per_node=N stages/train_depth.py --variant NAME   (several GPUs / processes)
 
-Reads `train_depth`, `loss_weights`, `data.*` and `variants.NAME` (its flow model and the loss terms it
-switches off). Writes models/depth_NAME/{seed<k>.pt, model.pt (= the first seed's)},
-metrics/train_depth/NAME.json and metrics/train_depth/NAME/history.csv. The models folder is built aside and
-replaces the old one only when every seed is trained; the resume states (train_depth.resume_dir) are
-removed only after every output is written, so a killed run — or one whose metrics could not be written —
-resumes from its last epoch checkpoint unless --no-resume is given. Every output location is checked to
-be writable before any work. Validation: NYU's labeled test set (data.nyu_labeled; null: none) and the
-prepared set's held-out tuples (prepare.val_share; f2depth.train.heldout), whichever there are. With ground
-truth in the prepared set (the synthetic default) every epoch also logs depth accuracy and pose errors on the
-training tuples (f2depth.train.diagnostics).
+Reads `train_depth`, the loss weights (`lambda1`, `lambda2`, `lambda_rigid`, `lambda3`), `data.*` and
+`variants.NAME` (its flow model and the loss terms it switches off). Writes models/depth_NAME/{seed<k>.pt,
+model.pt (= the first seed's)}, metrics/train_depth/NAME.json and
+metrics/train_depth/NAME/{history,validation}.csv (every epoch's losses; the measured epochs' scores). The
+models folder is built aside and replaces the old one only when every seed is trained; the resume states
+(train_depth.resume_dir) are removed only after every output is written, so a killed run — or one whose
+metrics could not be written — resumes from its last epoch checkpoint unless --no-resume is given. Every
+output location is checked to be writable before any work. Validation: NYU's labeled test set
+(data.nyu_labeled; null: none) and the prepared set's held-out tuples (prepare.val_share;
+f2depth.train.heldout), whichever there are. With ground truth in the prepared set (the synthetic default)
+every epoch also logs depth accuracy and pose errors on the training tuples (f2depth.train.diagnostics).
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ import argparse
 import contextlib
 import logging
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 
 from f2depth import params as P
@@ -31,8 +33,8 @@ from f2depth.io import atomic_dir, write_json
 from f2depth.numbers import format_number as fmt
 from f2depth.stage import run_stage
 from f2depth.train.distributed import cleanup, init_from_env
-from f2depth.train.loop import HISTORY_COLUMNS
-from f2depth.train.run import resume_states, train_variant
+from f2depth.train.loop import HISTORY_FILES
+from f2depth.train.run import resume_states, run_params, train_variant
 from f2depth.train.settings import settings_from_params
 
 
@@ -51,25 +53,37 @@ def main(argv: list[str]) -> None:
     threads.use(P.threads(params), loader_workers=settings.workers)
     out_dir = Path(args.models) / f"depth_{args.variant}"
     metrics_file = Path(args.metrics) / f"{args.variant}.json"
-    history_file = Path(args.metrics) / args.variant / "history.csv"
+    history_dir = Path(args.metrics) / args.variant
     ctx = init_from_env(settings.device)
     try:
         if ctx.is_main:  # before any work: every output location must take files
             for folder, option in ((out_dir.parent, "--models"), (metrics_file.parent, "--metrics"),
-                                   (history_file.parent, "--metrics"),
+                                   (history_dir, "--metrics"),
                                    (Path(settings.resume_dir), "train_depth.resume_dir")):
                 check_output_folder(folder, option)
 
-        def open_run(seed: int) -> contextlib.AbstractContextManager[tracking.StageRun]:
-            return tracking.stage_run("train_depth", params, variant=args.variant)
+        runs: dict[int, tracking.StageRun] = {}  # seed → its MLflow run, which logs its model at the end
 
-        with atomic_dir(out_dir) if ctx.is_main else contextlib.nullcontext(out_dir) as build_dir:
+        @contextlib.contextmanager
+        def open_run(seed: int) -> Iterator[tracking.StageRun]:
+            with tracking.stage_run("train_depth", params, variant=args.variant,
+                                    run_params=run_params(settings, [seed]),
+                                    seed=seed if len(settings.seeds) > 1 else None) as run:
+                runs[seed] = run
+                yield run
+
+        with (atomic_dir(out_dir, "train_depth", owned=True) if ctx.is_main  # DVC's output: DVC removes it
+              else contextlib.nullcontext(out_dir)) as build_dir:
             result = train_variant(settings, build_dir, ctx=ctx, open_run=open_run, resume=args.resume)
         if ctx.is_main:
-            write_history(history_file, result.history, HISTORY_COLUMNS)
+            for name, columns in HISTORY_FILES.items():
+                write_history(history_dir / name, result.history, columns)
             write_json(metrics_file, result.metrics)
             for state in resume_states(settings):  # only now: every output is written
                 clear_state(state)
+            for seed, run in runs.items():  # each model in place: an MLflow logged model, the run's output
+                run.log_model(out_dir / f"seed{seed}.pt", f"depth_{args.variant}-seed{seed}",
+                              run_params(settings, [seed]))
     finally:
         cleanup(ctx)
     if ctx.is_main:

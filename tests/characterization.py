@@ -76,7 +76,7 @@ def checksum(out: Values, name: str, x) -> None:
 
 
 #: The store's names of the terms L_sm and L_spp, from before issue #16 named each term as its weight in
-#: params.yaml ``loss_weights`` (smooth, planar); the values are the same.
+#: params.yaml's weights (smooth, planar); the values are the same.
 STORED_TERM_NAMES = {"smooth": "sm", "planar": "spp"}
 
 

@@ -5,6 +5,8 @@ Import from a test module as ``import fakes``. Every writer is deterministic for
 
 from __future__ import annotations
 
+import struct
+import zipfile
 from pathlib import Path
 
 import cv2
@@ -51,6 +53,20 @@ def write_rgb(path: Path, rgb: np.ndarray, params: list[int] | None = None) -> N
 def truncate(path: Path, keep: float = 0.6) -> None:
     data = path.read_bytes()
     path.write_bytes(data[: int(len(data) * keep)])
+
+
+def flip_weight_bytes(path: Path, count: int = 64) -> None:
+    """Damage a ``torch.save`` file as a bad disk or copy does: XOR ``count`` bytes (the lowest byte of as
+    many float32 values) in the middle of its largest tensor record. The zip structure stays intact and
+    torch does not check the records' CRC, so the file still loads — with other weights."""
+    with zipfile.ZipFile(path) as zf:
+        record = max((i for i in zf.infolist() if "/data/" in i.filename), key=lambda i: i.file_size)
+    raw = bytearray(path.read_bytes())
+    name_len, extra_len = struct.unpack_from("<HH", raw, record.header_offset + 26)  # the local header
+    start = record.header_offset + 30 + name_len + extra_len + record.file_size // 2
+    for k in range(count):
+        raw[start + 4 * k] ^= 0xFF
+    path.write_bytes(bytes(raw))
 
 
 # ---- NYU raw ---------------------------------------------------------------------------------------

@@ -15,6 +15,7 @@ import pytest
 import torch
 
 from f2depth.cli import main
+from f2depth.io import OUTPUT_MARKER
 
 
 @pytest.fixture(scope="module")
@@ -85,7 +86,7 @@ def test_error_mid_folder_keeps_earlier_outputs_valid(ckpt, tmp_path, capfd):
                  str(tmp_path / "out"), "--batch-size", "1", "--ply"])
     err = capfd.readouterr().err.splitlines()
     assert code == 1 and len(err) == 1 and "img_02.png: truncated PNG" in err[0]
-    names = sorted(p.name for p in (tmp_path / "out").iterdir())
+    names = sorted(p.name for p in (tmp_path / "out").iterdir() if p.name != OUTPUT_MARKER)
     assert names == sorted(f"img_0{i}{s}" for i in (0, 1) for s in
                            ("_depth.npy", "_depth_mm.png", "_depth_color.png", "_points.ply"))
     for i in (0, 1):
@@ -127,7 +128,8 @@ def test_interrupt_exit_130(ckpt, tmp_path, capfd, monkeypatch):
 
     monkeypatch.setattr(predict_mod, "run_predict", interrupted)
     inference_data.write_images(tmp_path / "in", 1)
-    code = main(["predict", "--model", str(ckpt), "--input", str(tmp_path / "in"), "--output", str(tmp_path)])
+    code = main(["predict", "--model", str(ckpt), "--input", str(tmp_path / "in"), "--output",
+                 str(tmp_path / "out")])
     err = capfd.readouterr().err.splitlines()
     assert code == 130
     assert err == ["f2depth predict: error: interrupted; every file written so far is complete"]

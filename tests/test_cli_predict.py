@@ -4,17 +4,23 @@ video, scaling options, point clouds with given intrinsics, export and predict -
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import subprocess
 import sys
 from pathlib import Path
 
 import cv2
+import fakes
 import inference_data
 import numpy as np
 import pytest
 
 from f2depth.cli import main
+from f2depth.inference.backends import load_backend
+from f2depth.inference.predict import Predictor, PredictSettings, run_predict
+from f2depth.inference.sources import Frame
+from f2depth.io import OUTPUT_MARKER
 
 
 @pytest.fixture(scope="module")
@@ -116,3 +122,135 @@ def test_usage_errors_exit_2(ckpt, tmp_path, capsys):
             main(argv)
         assert info.value.code == 2
     capsys.readouterr()
+
+
+# ---- issue 53: one run's frames per folder, nothing of the user's deleted, damaged models refused ---------
+
+
+def _err_line(capfd) -> str:
+    err = capfd.readouterr().err.splitlines()
+    assert len(err) == 1, err
+    return err[0]
+
+
+def _stems(folder: Path) -> list[str]:
+    return sorted(p.name[: -len("_depth.npy")] for p in folder.glob("*_depth.npy"))
+
+
+def test_a_new_run_replaces_the_frames_of_the_last_one(ckpt, tmp_path, capfd):
+    """Issue 53 item 2. Before: predicting 5 images into a folder that held 60 kept the 55 stale depth maps
+    under a predict.json that said 5. Now the folder holds the new run's frames only; a folder of an
+    earlier predict written before the output marker existed is recognised by its file names."""
+    inference_data.write_images(tmp_path / "many", 8, hw=(24, 32))
+    inference_data.write_images(tmp_path / "few", 3, hw=(24, 32), seed=50)
+    common = ["--model", str(ckpt), "--device", "cpu", "--no-progress"]
+    out = tmp_path / "out"
+    assert main(["predict", *common, "--input", str(tmp_path / "many"), "--output", str(out)]) == 0
+    assert len(_stems(out)) == 8 and (out / OUTPUT_MARKER).read_text() == "predict\n"
+    (out / OUTPUT_MARKER).unlink()  # as an output of before the marker: still ours by its names
+    assert main(["predict", *common, "--input", str(tmp_path / "few"), "--output", str(out)]) == 0
+    assert _stems(out) == ["img_00", "img_01", "img_02"] and len(list(out.iterdir())) == 3 * 3 + 2
+    assert json.loads((out / "predict.json").read_text())["frames"] == 3
+    few = {s: np.load(out / f"{s}_depth.npy") for s in _stems(out)}
+    assert main(["predict", *common, "--input", str(tmp_path / "many"), "--output", str(out)]) == 0
+    assert len(_stems(out)) == 8 and not np.array_equal(np.load(out / "img_00_depth.npy"), few["img_00"])
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["few", "many", "out"]  # no temporaries, no lock
+    capfd.readouterr()
+
+
+def test_a_second_run_into_the_same_folder_at_once_is_refused(ckpt, tmp_path, capfd):
+    """Issue 53 item 2. Before: two predict runs into one folder at once (different models) left 156 frames
+    of one and 44 of the other under a predict.json naming one. Now the second is refused in one line while
+    the first runs, and the folder holds the first run's frames only."""
+    other = inference_data.make_checkpoint(tmp_path / "other.pt", seed=9)
+    images = inference_data.write_images(tmp_path / "in", 4, hw=(24, 32))
+    out = tmp_path / "out"
+    backend = load_backend(ckpt, None, "cpu")
+    second = []
+
+    def frames():  # the first run's frames; after its first one, a second run into the same folder
+        for i, path in enumerate(images):
+            if i == 1:
+                second.append(main(["predict", "--model", str(other), "--input", str(tmp_path / "in"),
+                                    "--output", str(out), "--device", "cpu", "--no-progress"]))
+                second.append(_err_line(capfd))
+            yield Frame(path.stem, fakes.smooth_image((24, 32), i), str(path))
+
+    summary = run_predict(frames(), Predictor(backend), PredictSettings(out, batch_size=1, progress=False))
+    assert second[0] == 1 and second[1] == (
+        f"f2depth predict: error: {out}: another f2depth run (pid {os.getpid()}) is writing this folder now; "
+        "wait for it to end or give --output another folder (nothing was changed)")
+    assert summary["frames"] == 4 and summary["model"] == str(ckpt)
+    assert _stems(out) == [p.stem for p in images]
+    assert json.loads((out / "predict.json").read_text())["model"] == str(ckpt)
+
+
+def test_predict_replaces_no_folder_of_the_users_and_no_input(ckpt, tmp_path, capfd):
+    """Issue 53 item 1 for predict, which now swaps its folder in: a non-empty folder it did not write, and
+    one that holds the input, the model or the reference depth, are refused in one line, nothing touched."""
+    (image,) = inference_data.write_images(tmp_path / "work", 1, hw=(24, 32))
+    model = tmp_path / "work" / "m.pt"
+    shutil.copyfile(ckpt, model)
+    (tmp_path / "work" / "thesis.tex").write_text("four years of work")
+    inference_data.write_images(tmp_path / "in", 1, hw=(24, 32))
+    before = sorted((p.name, p.read_bytes()) for p in (tmp_path / "work").iterdir())
+    lost = "which replacing the output folder with this run's would delete"
+    apart = "give --output a folder apart from the inputs (nothing was changed)"
+    work = tmp_path / "work"
+    for argv, expected in (
+        (["--model", str(ckpt), "--input", str(tmp_path / "in")],
+         f"{work}: holds files that f2depth predict did not write (no .f2depth-output marker), and this run "
+         "would replace the whole folder; give --output a new or empty folder (nothing was changed)"),
+        (["--model", str(ckpt), "--input", str(image)], f"{work}: holds the input {image}, {lost}; {apart}"),
+        (["--model", str(model), "--input", str(tmp_path / "in")],
+         f"{work}: holds the input {model}, {lost}; {apart}"),
+    ):
+        code = main(["predict", *argv, "--output", str(work), "--device", "cpu", "--no-progress"])
+        assert (code, _err_line(capfd)) == (1, f"f2depth predict: error: {expected}")
+    assert sorted((p.name, p.read_bytes()) for p in work.iterdir()) == before
+
+
+def test_a_damaged_model_file_is_refused(ckpt, tmp_path, capfd):
+    """Issue 53 item 2. Before: a model file with 64 flipped bytes predicted depth up to 7.2× off, rc 0. Now
+    every checkpoint carries the sha256 of its weights; a mismatch is one line naming the file. A model
+    written before the digest existed still loads."""
+    damaged = tmp_path / "damaged.pt"
+    shutil.copyfile(ckpt, damaged)
+    fakes.flip_weight_bytes(damaged, 64)
+    inference_data.write_images(tmp_path / "in", 1, hw=(24, 32))
+    code = main(["predict", "--model", str(damaged), "--input", str(tmp_path / "in"), "--output",
+                 str(tmp_path / "out"), "--device", "cpu", "--no-progress"])
+    assert (code, _err_line(capfd)) == (1, f"f2depth predict: error: {damaged}: damaged: its weights do "
+                                           "not match the sha256 digest written with them (the file changed "
+                                           "after it was written); re-run the stage that wrote it (`dvc "
+                                           "repro train_depth`)")
+    assert not (tmp_path / "out").exists()
+    import torch
+
+    older = torch.load(ckpt, weights_only=True)
+    del older["weights_sha256"]  # as written before the digest existed
+    torch.save(older, tmp_path / "older.pt")
+    assert main(["predict", "--model", str(tmp_path / "older.pt"), "--input", str(tmp_path / "in"),
+                 "--output", str(tmp_path / "out"), "--device", "cpu", "--no-progress"]) == 0
+    capfd.readouterr()
+
+
+def test_far_depth_is_clipped_below_the_no_depth_code(ckpt, tmp_path, capfd):
+    """Issue 53 item 5. Before: depth beyond 65.535 m was written as 65535 mm, the "no depth" code, so those
+    pixels read back as missing (--scale-from of such a map skipped them). Now they are 65534 mm, counted in
+    predict.json (depth_mm) and said in one warning."""
+    inference_data.write_images(tmp_path / "in", 1, hw=(24, 32))
+    code = main(["predict", "--model", str(ckpt), "--input", str(tmp_path / "in"), "--output",
+                 str(tmp_path / "out"), "--scale", "1000", "--device", "cpu", "--no-progress"])
+    captured = capfd.readouterr()
+    assert code == 0
+    metres = np.load(tmp_path / "out" / "img_00_depth.npy")
+    mm = cv2.imread(str(tmp_path / "out" / "img_00_depth_mm.png"), cv2.IMREAD_UNCHANGED)
+    far = metres > 65.5345
+    assert far.any() and (mm[far] == 65534).all() and mm.max() == 65534 and mm.min() > 0
+    summary = json.loads((tmp_path / "out" / "predict.json").read_text())
+    assert summary["depth_mm"]["max"] == 65534 and summary["depth_mm"]["clipped_pixels"] == int(far.sum())
+    warning = [line for line in captured.err.splitlines() if "clipped" in line]
+    assert warning == [f"f2depth predict: warning: {int(far.sum())} pixel(s) lie beyond 65.534 m or below 1 "
+                       "mm: their value in <name>_depth_mm.png is clipped to 65534 or 1 mm (65535 and 0 mean "
+                       "no depth); <name>_depth.npy holds the metres"]

@@ -28,6 +28,7 @@ from f2depth.data.prepare import (
     undistort_crop,
 )
 from f2depth.data.prepared import PreparedSet
+from f2depth.io import OUTPUT_MARKER
 
 pytestmark = pytest.mark.filterwarnings("ignore:.*fewer than 3 sampled frames:UserWarning")
 
@@ -113,7 +114,7 @@ def test_prepare_end_to_end(world):
 
     # atomic: no temporary files or folders anywhere
     leftovers = list(out.parent.rglob(".*"))
-    assert leftovers == []
+    assert leftovers == [out / OUTPUT_MARKER] and (out / OUTPUT_MARKER).read_text() == "prepare\n"
 
 
 def test_prepare_parallel_matches_serial_and_replaces_old_set(world, tmp_path):

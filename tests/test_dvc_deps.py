@@ -16,7 +16,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tools"))
 import dvc_deps  # noqa: E402
 
-from f2depth.train.step import TERMS  # noqa: E402
+from f2depth.train.step import TERMS, WEIGHT_KEYS  # noqa: E402
 
 
 def test_the_checker_follows_imports_inside_functions_and_packages_but_not_type_checking(tmp_path):
@@ -90,12 +90,12 @@ def test_each_variant_depends_on_the_weights_it_trains_with_only():
     for name, variant in params["variants"].items():
         item = stage["foreach"][name]
         assert item["flow"] == (variant["flow"] or "stages/train_depth.py")
-        used = {t for t in TERMS if item[t] == f"loss_weights.{t}"}
+        used = {t for t in TERMS if item[t] == WEIGHT_KEYS[t]}
         assert used == set(TERMS) - set(variant["without"]), name
         assert all(item[t] == f"variants.{name}" for t in set(TERMS) - used), name
     assert params["variants"]["baseline"]["without"] == ["rigid", "feature"]  # the case that matters
     body = stage["do"]
-    assert "loss_weights" not in body["params"]  # the whole section would re-train every variant
+    assert not {*WEIGHT_KEYS.values()} & set(body["params"])  # a weight for all would re-train every variant
     assert [f"${{item.{t}}}" for t in TERMS] == [p for p in body["params"] if str(p).startswith("${item.")]
     assert "${item.flow}" in body["deps"]
 
@@ -105,3 +105,48 @@ def test_the_papers_numbers_reach_the_tables_stage_only(stage):
     deps = dvc_deps.declared_code_deps(ROOT / "dvc.yaml")
     assert "f2depth/report/published.py" in deps["tables"]
     assert not any(d.startswith("f2depth/report/") for d in deps[stage])
+
+
+def _rerun_sets() -> dict[str, set[str]]:
+    """For each top-level weight key of params.yaml: the stages `dvc exp run -S <key>=…` re-runs, read with
+    DVC's own index (the stages that list the key and every stage downstream of them)."""
+    import networkx as nx
+    from dvc.dependency.param import ParamsDependency
+    from dvc.repo import Repo
+
+    with Repo(str(ROOT)) as repo:
+        graph, stages = repo.index.graph, repo.index.stages
+        sets = {}
+        for key in (*WEIGHT_KEYS.values(), "lambda_flow_smooth"):
+            direct = [s for s in stages
+                      if any(key in (d.params or ()) for d in s.deps if isinstance(d, ParamsDependency))]
+            sets[key] = {s.addressing for s in direct}.union(
+                *({a.addressing for a in nx.ancestors(graph, s)} for s in direct))
+    return sets
+
+
+def test_each_paper_weight_reruns_exactly_the_stages_that_train_with_it():
+    """The design card's `dvc exp run -S lambda3=0` re-trains and re-evaluates the three variants with
+    L_feature and re-makes the tables; λ1 and λ2 every variant; the fine-tuning's λ both flow models and every
+    flow variant after them."""
+    params = yaml.safe_load((ROOT / "params.yaml").read_text())
+    variants = params["variants"]
+    sets = _rerun_sets()
+
+    def trained(names):
+        return {f"{stage}@{n}" for n in names for stage in ("train_depth", "evaluate")} | {"tables"}
+
+    with_feature = [n for n, v in variants.items() if "feature" not in v["without"]]
+    assert with_feature == ["full", "flow_pretrained", "flow_full_ft"]
+    assert sets["lambda3"] == trained(with_feature)
+    assert sets["lambda_rigid"] == trained(n for n, v in variants.items() if "rigid" not in v["without"])
+    assert sets["lambda1"] == sets["lambda2"] == trained(variants)
+    assert {"flow_finetune@patch", "flow_finetune@full", "train_depth@full"} <= sets["lambda_flow_smooth"]
+    assert "train_depth@baseline" not in sets["lambda_flow_smooth"]
+
+
+def test_the_paper_weights_are_top_level_keys_with_the_cpu_defaults():
+    params = yaml.safe_load((ROOT / "params.yaml").read_text())
+    assert "loss_weights" not in params  # one copy of each weight, by the paper's name
+    cpu = {"lambda1": 0.001, "lambda2": 0.05, "lambda3": 0.3, "lambda_rigid": 0.1, "lambda_flow_smooth": 50}
+    assert {key: params[key] for key in cpu} == cpu

@@ -7,6 +7,7 @@ from __future__ import annotations
 import itertools
 from pathlib import Path
 
+import fakes
 import pytest
 import torch
 import train_fakes
@@ -15,7 +16,7 @@ from test_flow_pretrain import make_set
 from f2depth.data.prepared import PreparedSet
 from f2depth.data.sintel import list_pairs
 from f2depth.depth import DepthModel, DepthModelConfig
-from f2depth.epochs import EpochLoop, NonFiniteEpochError, clear_state, load_state
+from f2depth.epochs import EpochLoop, NonFiniteEpochError, clear_state, load_state, save_state
 from f2depth.flow import PWCLite
 from f2depth.flow import finetune as flow_finetune
 from f2depth.flow import pretrain as flow_pretrain
@@ -80,6 +81,20 @@ def test_loop_skips_counts_and_stops_on_an_all_non_finite_epoch(tmp_path):
     assert load_state(tmp_path / "s" / "state.pt", "other")[0] is None
     clear_state(tmp_path / "s" / "state.pt")
     assert not (tmp_path / "s").exists()
+
+
+def test_a_damaged_resume_state_starts_afresh(tmp_path):
+    """Issue 53 item 2: a resume state whose model weights changed after it was written (flipped bytes) is
+    not resumed; the reason names the file and the part."""
+    model = torch.nn.Linear(32, 32)
+    path = tmp_path / "state.pt"
+    save_state(path, run="toy", fingerprint="fp", epoch=1, history=[], parts={"model": model})
+    assert load_state(path, "fp")[1] == ""
+    fakes.flip_weight_bytes(path, 64)
+    state, reason = load_state(path, "fp")
+    assert state is None and reason == (f"{path} (model): damaged: its weights do not match the sha256 "
+                                        "digest written with them (the file changed after it was written); "
+                                        "starting afresh")
 
 
 def nan_on(net: torch.nn.Module, calls) -> None:

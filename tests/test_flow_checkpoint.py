@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import fakes
 import pytest
 import torch
 
@@ -104,11 +105,30 @@ def test_own_format_round_trip(tmp_path):
     raw = torch.load(path, weights_only=True)
     assert raw["format"] == "f2depth.flow" and raw["version"] == 2
     assert raw["network"] == "pwclite" and raw["network_kwargs"] == {}
-    assert set(raw) == {"format", "version", "network", "network_kwargs", "state_dict", "config", "params"}
+    assert set(raw) == {"format", "version", "network", "network_kwargs", "state_dict", "weights_sha256",
+                        "config", "params"}
     loaded, meta = read_flow_checkpoint(path)
     assert meta["config"] == {"source": "test"} and meta["params"] == {"lr": 1e-4}
     assert meta["network"] == "pwclite" and isinstance(loaded, PWCLite) and not loaded.training
     assert _same_weights(loaded, raw["state_dict"]) and _same_weights(model, raw["state_dict"])
+
+
+def test_a_damaged_flow_model_is_refused_and_one_without_a_digest_loads(tmp_path):
+    """Issue 53 item 2: 64 flipped bytes in a weight leave the file loadable; the digest written with the
+    weights refuses it, naming the file. A model written before the digest existed still loads."""
+    model = PWCLite()
+    path = tmp_path / "flow.pt"
+    save_flow_model(path, model)
+    fakes.flip_weight_bytes(path, 64)
+    with pytest.raises(CheckpointError) as info:
+        load_flow_model(path)
+    assert str(info.value) == (f"{path}: damaged: its weights do not match the sha256 digest written with "
+                               "them (the file changed after it was written); re-run the stage that wrote it "
+                               "(`dvc repro flow_pretrain`, `dvc repro flow_finetune`)")
+    older = torch.load(path, weights_only=True)
+    del older["weights_sha256"]
+    torch.save(older, tmp_path / "older.pt")
+    assert isinstance(load_flow_model(tmp_path / "older.pt"), PWCLite)
 
 
 def test_checkpoints_written_before_the_network_was_recorded_load_as_pwclite(tmp_path):

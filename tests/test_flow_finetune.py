@@ -246,7 +246,7 @@ def test_stages_write_their_outputs(prepared, tmp_path, monkeypatch):
     torch.manual_seed(0)
     save_flow_model(tmp_path / "models" / "flow_pretrained.pt", PWCLite())
     params = {
-        "seed": 0, "device": "cpu", "threads": 1, "loss_weights": {"flow_smooth": 50},
+        "seed": 0, "device": "cpu", "threads": 1, "lambda_flow_smooth": 50,
         "allow_random_init": True,
         "flow_pretrain": {"checkpoint": None},
         "data": {"prepared": "data/prepared", "keypoints": "data/keypoints"},
@@ -282,6 +282,7 @@ def test_stages_write_their_outputs(prepared, tmp_path, monkeypatch):
         with (tmp_path / "metrics" / "flow_finetune" / loss / "history.csv").open() as fh:
             rows = list(csv.DictReader(fh))
         assert [r["epoch"] for r in rows] == ["1"] and float(rows[0]["epe_low_texture"]) >= 0
+        assert all(v != "" for r in rows for v in r.values())  # measured every epoch: no gap for a plot
         assert float(rows[0]["photometric"]) > 0
         coverage[loss] = float(rows[0]["coverage"])
         assert not (tmp_path / "tmp" / "flow_finetune" / f"{loss}.pt").exists()
@@ -325,7 +326,7 @@ def write_stage_params(root: Path, **finetune) -> None:
                "augment": True, "holdout_scenes": 1, "eval_train_pairs": 1, "workers": 0,
                "pretrained": "models/flow_pretrained.pt", "model": "models/flow_{loss}.pt",
                "out_dir": "metrics/flow_finetune", "resume_dir": "tmp/flow_finetune", **finetune}
-    params = {"seed": 0, "device": "cpu", "threads": 1, "loss_weights": {"flow_smooth": 50},
+    params = {"seed": 0, "device": "cpu", "threads": 1, "lambda_flow_smooth": 50,
               "allow_random_init": True,
               "flow_pretrain": {"checkpoint": None},
               "data": {"prepared": "data/prepared", "keypoints": "data/keypoints"}, "flow_finetune": section}

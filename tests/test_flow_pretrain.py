@@ -222,6 +222,9 @@ def test_stage_chairs_route_end_to_end(tmp_path, monkeypatch):
     assert {"heldout_top1_s4", "heldout_top1_s8"} <= set(training["after_features"])
     history = list(csv.DictReader((tmp_path / "metrics" / "flow_pretrain" / "history.csv").open()))
     assert list(history[0]) == list(bootstrap.HISTORY_COLUMNS) and len(history) == 2
+    phase_b = list(csv.DictReader((tmp_path / "metrics" / "flow_pretrain" / "phase_b.csv").open()))
+    assert list(phase_b[0]) == list(bootstrap.PHASE_B_COLUMNS) and [r["epoch"] for r in phase_b] == ["2"]
+    assert all(v != "" for r in history + phase_b for v in r.values())  # no gap a plot would draw as 0
     model = load_flow_model(tmp_path / "models" / "flow_pretrained.pt")
     assert isinstance(model, PWCLite)
     assert not (tmp_path / "tmp" / "flow_pretrain").exists()
@@ -236,6 +239,8 @@ def test_stage_imports_an_arflow_checkpoint(tmp_path, monkeypatch):
     assert metrics["source"] == "arflow" and "training" not in metrics
     header = (tmp_path / "metrics" / "flow_pretrain" / "history.csv").read_text()
     assert header == ",".join(HISTORY_COLUMNS) + "\n"  # imported: no training epochs
+    phase_b = (tmp_path / "metrics" / "flow_pretrain" / "phase_b.csv").read_text()
+    assert phase_b == ",".join(bootstrap.PHASE_B_COLUMNS) + "\n"
     assert metrics["heldout_sequences"] == ["b_1", "c_1"] and metrics["heldout_clean"]["pairs"] == 4
     loaded = load_flow_model(tmp_path / "models" / "flow_pretrained.pt")
     assert all(torch.equal(v, loaded.state_dict()[k]) for k, v in ref.state_dict().items())

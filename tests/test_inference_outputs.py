@@ -9,11 +9,13 @@ import numpy as np
 import pytest
 
 from f2depth.inference.outputs import (
+    MM_MAX,
     SUFFIXES,
     colorize_depth,
     default_intrinsics,
     depth_to_mm,
     intrinsics,
+    mm_clipped,
     write_frame,
 )
 
@@ -37,9 +39,28 @@ def test_mm_png_and_npy_agree(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(p.name for p in paths)  # no temp files
 
 
-def test_depth_to_mm_saturates():
-    np.testing.assert_array_equal(depth_to_mm(np.array([0.0, 0.0004, 0.0006, 1.2345, 70.0])),
-                                  [0, 0, 1, 1234, 65535])
+def test_depth_to_mm_never_writes_a_no_depth_code_for_a_depth():
+    """Issue 53 item 5. Before: 70 m → 65535 (and 0.4 mm → 0), the codes that 7-Scenes-style readers (ours
+    too: f2depth.inference.scaling, f2depth.data.sevenscenes) take for "no depth". Now a depth is clipped to
+    [1, 65534] mm and reads back as a depth; 0, negative and NaN stay 0."""
+    depth = np.array([0.0, 0.0004, 0.0006, 1.2345, 65.534, 70.0, np.inf, -1.0, np.nan])
+    mm = depth_to_mm(depth)
+    np.testing.assert_array_equal(mm, [0, 1, 1, 1234, 65534, 65534, 65534, 0, 0])
+    assert MM_MAX == 65534 and mm_clipped(depth) == 3  # 0.0004 m, 70 m and inf
+
+
+def test_a_far_depth_reads_back_as_a_depth(tmp_path):
+    """Issue 53 item 5 through the files: a 70 m pixel in a predicted _depth_mm.png was 65535 and read back
+    by --scale-from as missing; now it is 65534 mm."""
+    from f2depth.inference.scaling import read_reference_depth
+
+    depth = np.full((4, 5), 2.0, np.float32)
+    depth[0, 0] = 70.0
+    (mm_path, *_rest) = write_frame(tmp_path, "f", depth, np.zeros((4, 5, 3), np.uint8))
+    mm = cv2.imread(str(mm_path), cv2.IMREAD_UNCHANGED)
+    assert mm[0, 0] == 65534 and (mm[1:] == 2000).all()
+    back = read_reference_depth(mm_path)
+    assert back[0, 0] == pytest.approx(65.534) and (back > 0).all()  # nothing reads as "no depth"
 
 
 def test_colour_map_near_is_bright_and_invalid_black():

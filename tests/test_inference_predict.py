@@ -15,6 +15,7 @@ from f2depth.inference.backends import TorchBackend, load_backend
 from f2depth.inference.predict import Predictor, PredictSettings, run_predict
 from f2depth.inference.scaling import median_ratio, read_reference_depth
 from f2depth.inference.sources import Frame, open_source
+from f2depth.io import OUTPUT_MARKER
 
 
 @pytest.fixture(scope="module")
@@ -126,8 +127,9 @@ def test_interrupted_run_leaves_complete_files_only(backend, tmp_path):
     with pytest.raises(DataError, match="bad.png"):
         run_predict(frames(), Predictor(backend), PredictSettings(tmp_path / "out", batch_size=2, ply=True,
                                                                   progress=False))
-    names = sorted(p.name for p in (tmp_path / "out").iterdir())
+    names = sorted(p.name for p in (tmp_path / "out").iterdir() if p.name != OUTPUT_MARKER)
     assert not [n for n in names if n.startswith(".")]  # no temporary files
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]  # no temporary folder, no lock file
     assert "predict.json" not in names
     assert len(names) == 8  # frames f0, f1 (first batch) with 4 files each; the second batch never ran
     for i in range(2):

@@ -31,6 +31,7 @@ from f2depth.ingest.camera_files import (
 from f2depth.ingest.run import IngestConfig, collect_inputs, ingest
 from f2depth.ingest.select import FrameFilter, median_motion
 from f2depth.ingest.selfcal import best_focal, focal_costs
+from f2depth.io import OUTPUT_MARKER
 from f2depth.poses.estimate import PosesConfig, estimate_scene
 
 HW = (240, 320)
@@ -373,3 +374,70 @@ def test_a_rotation_the_decoder_does_not_apply_is_said(clip, tmp_path, monkeypat
                                          r"turn its frames"):
         summary = ingest([video], tmp_path / "out", CONFIG, fov=60.0, progress=False)
     assert summary["scenes"]["sideways"]["rotation_applied"] is False
+
+
+# ---- issue 53 item 1: nothing of the user's is ever deleted --------------------------------------------
+
+def _tree(root: Path) -> dict[str, bytes | None]:
+    """Every path under ``root`` (hidden ones too) → its bytes (None for a folder)."""
+    return {str(p.relative_to(root)): p.read_bytes() if p.is_file() else None
+            for p in sorted(root.rglob("*"))}
+
+
+def test_ingest_never_deletes_its_inputs_or_a_folder_it_did_not_write(clip, tmp_path, capsys):
+    """Issue 53 item 1. Before: `ingest dl/photos --out dl/photos --fov 60` printed "wrote 1 scene(s) to
+    dl/photos", rc 0, and the photos were gone; `ingest dl2/videos/moving.mp4 --out dl2/videos` deleted the
+    video and an unrelated sibling folder; --out at any non-empty folder ingest did not make (a thesis)
+    lost its contents. Now each is refused in one line, exit 1, before anything is written."""
+    photos = tmp_path / "dl" / "photos"
+    photos.mkdir(parents=True)
+    video = cv2.VideoCapture(str(clip[0] / "living room.avi"))
+    for k in range(STATIC + 12):  # the moving part of the clip as photos
+        ok, bgr = video.read()
+        if k >= STATIC:
+            cv2.imwrite(str(photos / f"IMG_{k:04d}.jpg"), bgr)
+    video.release()
+    videos = tmp_path / "dl2" / "videos"
+    (videos / "other").mkdir(parents=True)
+    (videos / "other" / "notes.txt").write_text("an unrelated sibling")
+    moving = videos / "moving.avi"
+    shutil.copyfile(clip[0] / "living room.avi", moving)
+    thesis = tmp_path / "thesis"
+    thesis.mkdir()
+    (thesis / "thesis.tex").write_text("four years of work")
+    common = ["--fov", "60", "--params", str(REPO / "params.yaml"), "--no-progress"]
+    lost = "which replacing the output folder with this run's would delete"
+    apart = "give --out a folder apart from the inputs (nothing was changed)"
+    cases = [
+        (photos, photos, f"{photos}: is the input {photos}, {lost}; {apart}"),
+        (moving, videos, f"{videos}: holds the input {moving}, {lost}; {apart}"),
+        (photos, photos / "ingested", f"{photos / 'ingested'}: lies inside the input {photos}; {apart}"),
+        (moving, thesis, f"{thesis}: holds files that f2depth ingest did not write (no .f2depth-output "
+                         "marker), and this run would replace the whole folder; give --out a new or empty "
+                         "folder (nothing was changed)"),
+    ]
+    before = _tree(tmp_path)
+    for source, out, expected in cases:
+        rc = cli_main(["ingest", str(source), "--out", str(out), *common])
+        assert (rc, capsys.readouterr().err.splitlines()) == (1, [f"f2depth ingest: error: {expected}"])
+    assert _tree(tmp_path) == before  # nothing deleted, nothing added
+    for source in (photos, moving):  # the same inputs ingest fine into a folder of their own
+        assert cli_main(["ingest", str(source), "--out", str(tmp_path / f"from_{source.stem}"), *common]) == 0
+
+    # a folder ingest made (its marker) is replaced; so is one written before the marker existed
+    mine = tmp_path / "mine"
+    assert cli_main(["ingest", str(moving), "--out", str(mine), *common]) == 0
+    assert (mine / OUTPUT_MARKER).read_text() == "ingest\n"
+    (mine / OUTPUT_MARKER).unlink()
+    assert cli_main(["ingest", str(moving), "--out", str(mine), *common]) == 0
+    assert (mine / OUTPUT_MARKER).is_file()
+    (mine / OUTPUT_MARKER).unlink()  # an earlier ingest to which the user added a file: not ours to delete
+    (mine / "notes.txt").write_text("mine")
+    capsys.readouterr()
+    assert cli_main(["ingest", str(moving), "--out", str(mine), *common]) == 1
+    assert "holds files that f2depth ingest did not write" in capsys.readouterr().err
+    assert (mine / "notes.txt").read_text() == "mine"
+    # the camera file is an input too
+    camera = _camera_json(thesis / "camera.json")
+    with pytest.raises(DataError, match=r"thesis: holds the input .*camera\.json"):
+        ingest([moving], thesis, CONFIG, camera_file=camera, progress=False)

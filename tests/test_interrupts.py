@@ -13,7 +13,7 @@ import textwrap
 import time
 from pathlib import Path
 
-from f2depth.io import atomic_dir, clear_stale_temporaries
+from f2depth.io import OUTPUT_MARKER, atomic_dir, clear_stale_temporaries
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -45,7 +45,7 @@ HOLD_AN_ATOMIC_DIR = """
     from f2depth.stage import run_stage
 
     def main(argv):
-        with atomic_dir(Path(argv[1]) / "out") as tmp:
+        with atomic_dir(Path(argv[1]) / "out", "hold", owned=True) as tmp:
             (tmp / "half.txt").write_text("half of the output")
             Path(argv[1], "ready").touch()
             time.sleep(60)
@@ -61,10 +61,10 @@ def test_kill_9_leaves_a_temporary_that_the_next_run_clears(tmp_path):
     assert run.returncode == -signal.SIGKILL
     stale = [p.name for p in tmp_path.iterdir() if p.name.startswith(".out.tmp-")]
     assert len(stale) == 1  # what kill -9 leaves: nothing can clean up inside the killed process
-    with atomic_dir(tmp_path / "out") as tmp:
+    with atomic_dir(tmp_path / "out", "hold", owned=True) as tmp:
         (tmp / "new.txt").write_text("new")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out", "ready"]
-    assert [p.name for p in (tmp_path / "out").iterdir()] == ["new.txt"]
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == [OUTPUT_MARKER, "new.txt"]
 
 
 def test_sigterm_ends_a_stage_like_ctrl_c(tmp_path):

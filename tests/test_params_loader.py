@@ -20,7 +20,7 @@ import yaml
 from f2depth import params as P
 from f2depth import profile
 from f2depth.train.settings import settings_from_params
-from f2depth.train.step import TERMS
+from f2depth.train.step import TERMS, WEIGHT_KEYS
 
 ROOT = Path(__file__).resolve().parents[1]
 STAGES = ("synth", "poses", "keypoints", "prepare", "flow_pretrain", "flow_finetune", "flow_figure",
@@ -176,7 +176,7 @@ def test_every_migrated_stage_builds_its_config_from_params_and_each_profile(tmp
     finetune = cfg["flow_finetune_patch"][0]
     assert finetune.epochs == params["flow_finetune"]["epochs"] and finetune.loss == "patch"
     assert finetune.w_scales == tuple(params["flow_finetune"]["w_scales"])
-    assert finetune.smooth_weight == params["loss_weights"]["flow_smooth"]
+    assert finetune.smooth_weight == params["lambda_flow_smooth"]
     assert cfg["evaluate"][0].timing_repeats == params["evaluate"]["timing_repeats"]
     assert cfg["keypoints"].preset == params["keypoints"]["preset"]
     assert cfg["synth"].campus_hw == (params["synth"]["campus"]["height"], params["synth"]["campus"]["width"])
@@ -187,7 +187,7 @@ def test_every_migrated_stage_builds_its_config_from_params_and_each_profile(tmp
         assert settings.lr == tuple(params["train_depth"]["lr"])
         assert settings.init_depth == params["train_depth"]["init_depth"]
         assert settings.weights == {term: 0.0 if term in params["variants"][variant]["without"]
-                                    else params["loss_weights"][term] for term in TERMS}
+                                    else params[WEIGHT_KEYS[term]] for term in TERMS}
 
 
 @pytest.mark.parametrize("stage, dotted, bad, expected", [
@@ -231,11 +231,9 @@ def test_a_stage_given_a_bad_value_prints_one_line_and_touches_nothing(tmp_path)
 
 
 @pytest.mark.parametrize("dotted, bad, expected", [
-    ("loss_weights.feature", "abc", "params.yaml: loss_weights.feature is 'abc'; set it to a finite number"),
-    ("loss_weights.feature", -1, "params.yaml: loss_weights.feature is -1.0; set it to a value >= 0"),
-    ("loss_weights.smooth", None, "params.yaml: loss_weights.smooth is None; set it to a finite number"),
-    ("loss_weights.featur", 0, "params.yaml: loss_weights: unknown keys ['featur']; loss_weights.featur: "
-                               "did you mean feature?"),
+    ("lambda3", "abc", "params.yaml: lambda3 is 'abc'; set it to a finite number"),
+    ("lambda3", -1, "params.yaml: lambda3 is -1.0; set it to a value >= 0"),
+    ("lambda1", None, "params.yaml: lambda1 is None; set it to a finite number"),
     ("variants.full.without", ["featur"], "params.yaml: variants.full.without: unknown terms ['featur']"),
     ("train_depth.epochs", 0, "params.yaml: train_depth.epochs is 0; set it to a value >= 1"),
     ("train_depth.augment", "false", "params.yaml: train_depth.augment is 'false'; set it to true or false"),

@@ -22,10 +22,11 @@ def test_profiles_round_trip_keeps_comments(tmp_path):
     assert paper["train_depth"]["epochs"] == 44 and paper["train_depth"]["batch_size"] == 12
     assert paper["flow_finetune"]["epochs"] == 37 and paper["flow_finetune"]["batch_size"] == 20
     # the paper's λ1, λ2, L_rigid's 1, λ3 and eq. (9)'s λ (a term added later may be pinned to 0 there)
-    paper_weights = {"smooth": 0.001, "planar": 0.05, "rigid": 1.0, "feature": 3.0, "flow_smooth": 50}
-    assert {t: paper["loss_weights"][t] for t in paper_weights} == paper_weights
-    assert "prepare.height" in changed
-    assert "# ---- loss weights" in params.read_text() and "# λ3, L_feature" in params.read_text()
+    paper_weights = {"lambda1": 0.001, "lambda2": 0.05, "lambda_rigid": 1.0, "lambda3": 3.0,
+                     "lambda_flow_smooth": 50}
+    assert {key: paper[key] for key in paper_weights} == paper_weights
+    assert "prepare.height" in changed and "lambda3" in changed
+    assert "# ---- the paper's loss weights" in params.read_text() and "# L_feature:" in params.read_text()
     profile.apply("cpu", params, ROOT / "configs/profiles.yaml")
     assert yaml.safe_load(params.read_text()) == yaml.safe_load(before)
 

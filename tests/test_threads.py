@@ -189,7 +189,8 @@ def test_adapt_runs_only_when_the_count_is_automatic(monkeypatch, restore_thread
     assert threads.use(2) == 2 and threads.adapt() is None
     monkeypatch.delenv("OMP_NUM_THREADS")
     monkeypatch.setattr(threads, "usable_cpus", lambda cgroup=threads.CGROUP: 2)
-    assert threads.use(None) == 2
+    assert threads.use(None) == 2 and threads.adapt() is None  # training: the count stays
+    assert threads.use(None, follow_free_cores=True) == 2  # inference
     monkeypatch.setattr(threads._free, "threads", lambda: 1)
     assert threads.adapt() == 1 and torch.get_num_threads() == 1
     threads.use(1)

@@ -2,15 +2,19 @@
 
 from __future__ import annotations
 
+import json
 import os
 import socket
 import subprocess
 import sys
 import time
+import urllib.parse
 from pathlib import Path
 
 import pytest
+import torch
 from mlflow.tracking import MlflowClient
+from test_stage_evaluate import tree  # noqa: F401 (the evaluate stage's tiny test sets, a fixture)
 
 from f2depth import tracking
 
@@ -24,6 +28,7 @@ def mlflow_uri(tmp_path, monkeypatch):
     monkeypatch.setenv("F2DEPTH_MLFLOW", "1")
     monkeypatch.delenv("DVC_STAGE", raising=False)
     monkeypatch.setenv("DVC_EXP_NAME", "exp-test")
+    monkeypatch.chdir(tmp_path)  # the store's artifacts (./mlruns) stay in the test's folder
     return uri
 
 
@@ -190,3 +195,144 @@ def test_a_failing_mlflow_call_turns_the_mirror_off_not_the_stage(mlflow_uri, mo
     assert len(warnings) == 1 and "ConnectionError: connection reset by peer" in warnings[0]
     with pytest.raises(ZeroDivisionError), tracking.stage_run("prepare", {}):
         _ = 1 / 0
+
+
+# ---- comparing the ablations in MLflow (issue 52 item 3) -------------------------------------------------
+
+def _pipeline(monkeypatch, dvc_pid: int, exp_name: str | None) -> None:
+    """What the stages of one `dvc repro` (exp_name None) or `dvc exp run` see."""
+    monkeypatch.setattr(tracking, "_dvc_process_id", lambda: dvc_pid)
+    if exp_name is None:
+        monkeypatch.delenv("DVC_EXP_NAME", raising=False)
+    else:
+        monkeypatch.setenv("DVC_EXP_NAME", exp_name)
+
+
+def test_runs_are_named_variant_first_and_apart_across_pipelines(mlflow_uri, monkeypatch):
+    """Two `dvc repro` of one commit and a `dvc exp run`: every run name is unique and starts with the
+    variant; the experiment (created earlier without it) gets MLflow 3's machine-learning kind."""
+    client = MlflowClient(tracking_uri=mlflow_uri)
+    client.create_experiment(tracking.EXPERIMENT)  # as the mirror before issue 52 made it
+    monkeypatch.setattr(tracking, "git_commit", lambda cwd=".": "0123456789abcdef")
+    names = []
+    for pid, exp_name in ((101, None), (102, None), (103, "bluff-rain")):
+        _pipeline(monkeypatch, pid, exp_name)
+        for variant in ("flow_pretrained", "flow_full_ft"):
+            with tracking.stage_run("evaluate", {}, variant=variant) as run:
+                names.append(client.get_run(run.run_id).info.run_name)
+        with tracking.stage_run("train_depth", {}, variant="full", seed=1) as run:
+            names.append(client.get_run(run.run_id).info.run_name)
+            assert client.get_run(run.run_id).data.tags["dvc_stage"] == "train_depth@full"
+    assert names == ["flow_pretrained · evaluate · 0123456", "flow_full_ft · evaluate · 0123456",
+                     "full · train_depth seed 1 · 0123456",
+                     "flow_pretrained · evaluate · 0123456 #2", "flow_full_ft · evaluate · 0123456 #2",
+                     "full · train_depth seed 1 · 0123456 #2",
+                     "flow_pretrained · evaluate · bluff-rain", "flow_full_ft · evaluate · bluff-rain",
+                     "full · train_depth seed 1 · bluff-rain"]
+    experiment = client.get_experiment_by_name(tracking.EXPERIMENT)
+    assert experiment.tags["mlflow.experimentKind"] == "custom_model_development"
+    parents = client.search_runs([experiment.experiment_id], filter_string="tags.kind = 'pipeline'")
+    assert sorted(r.info.run_name for r in parents) == ["pipeline · 0123456", "pipeline · 0123456 #2",
+                                                        "pipeline · bluff-rain"]
+
+
+def test_a_new_store_gets_the_experiment_kind(mlflow_uri):
+    with tracking.stage_run("synth", {}):
+        pass
+    experiment = MlflowClient(tracking_uri=mlflow_uri).get_experiment_by_name(tracking.EXPERIMENT)
+    assert experiment.tags["mlflow.experimentKind"] == "custom_model_development"
+
+
+def test_train_and_evaluate_runs_carry_the_papers_names_and_share_the_logged_models(
+        tree, mlflow_uri, monkeypatch):  # noqa: F811 (tree: the fixture imported above)
+    """Fake train_depth results (two seeds' checkpoints of a variant trained without L_rigid and
+    L_feature, mirrored as the stage does) and the real evaluate stage on them: both runs carry lambda1..3,
+    lambda_rigid (0 for the terms the variant is without), flow_model, seeds, epochs, variant; each model is
+    one logged model, the train run's output and the evaluate run's input, with its own seed's results."""
+    from types import SimpleNamespace
+
+    from test_stage_evaluate import run as run_evaluate
+
+    from f2depth.depth import DepthModel, DepthModelConfig, save_checkpoint
+    from f2depth.train.run import run_params
+    from f2depth.train.settings import loss_weights
+    from f2depth.train.step import WEIGHT_KEYS
+
+    monkeypatch.setenv("F2DEPTH_MLFLOW", "1")  # the evaluate fixture switches it off
+    monkeypatch.setenv("DVC_ROOT", str(tree))
+    lambdas = {"lambda1": 0.001, "lambda2": 0.05, "lambda3": 0.3, "lambda_rigid": 0.1}
+    s = SimpleNamespace(variant="full", weights=loss_weights(lambdas, ["rigid", "feature"]), flow_model=None,
+                        epochs=2, without=("rigid", "feature"))
+    train_runs = {}
+    for seed in (0, 1):  # what stages/train_depth.py writes and mirrors
+        path = tree / "models" / "depth_full" / f"seed{seed}.pt"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        torch.manual_seed(seed)
+        save_checkpoint(path, DepthModel(DepthModelConfig(64, 96)), variant="full", seed=seed,
+                        params={"weights": s.weights, "flow_model": None, "epochs": 2,
+                                "without": ["rigid", "feature"], "seeds": [0, 1], "variant": "full"},
+                        weight_keys=dict(WEIGHT_KEYS))
+        with tracking.stage_run("train_depth", {**lambdas, "train_depth": {"epochs": 2}}, variant="full",
+                                run_params=run_params(s, [seed]), seed=seed) as run:
+            run.log_epoch({"epoch": 1, "loss": 1.0})
+        train_runs[run.log_model(path, f"depth_full-seed{seed}", run_params(s, [seed]))] = run.run_id
+    doc = run_evaluate(tree)
+
+    client = MlflowClient(tracking_uri=mlflow_uri)
+    experiment_id = client.get_experiment_by_name(tracking.EXPERIMENT).experiment_id
+    (found,) = client.search_runs([experiment_id], filter_string="tags.stage = 'evaluate'")
+    evaluation = client.get_run(found.info.run_id)
+    assert evaluation.info.run_name == "full · evaluate · exp-test"
+    expected = {"lambda1": "0.001", "lambda2": "0.05", "lambda3": "0.0", "lambda_rigid": "0.0",
+                "flow_model": "none", "epochs": "2", "variant": "full", "without": "rigid,feature"}
+    assert {k: evaluation.data.params[k] for k in expected} == expected
+    assert evaluation.data.params["seeds"] == "0,1"
+    for seed, run_id in enumerate(train_runs.values()):
+        params = client.get_run(run_id).data.params
+        assert {k: params[k] for k in expected} == expected and params["seeds"] == str(seed)
+        assert client.get_run(run_id).info.run_name == f"full · train_depth seed {seed} · exp-test"
+    # the headline: named to sort first, the mean over seeds in the run
+    metrics = evaluation.data.metrics
+    assert sorted(metrics)[:6] == ["1_nyu_abs_rel", "1_nyu_delta1", "2_sevenscenes_abs_rel",
+                                   "2_sevenscenes_delta1", "3_campus_abs_rel", "3_campus_delta1"]
+    assert metrics["1_nyu_delta1"] == pytest.approx(doc["nyu"]["a1"])
+    assert metrics["nyu.abs_rel"] == pytest.approx(doc["nyu"]["abs_rel"])
+    # one logged model per seed: output of its train run, input of the evaluate run, with its seed's results
+    assert sorted(m.model_id for m in evaluation.inputs.model_inputs) == sorted(train_runs)
+    for seed, (model_id, run_id) in enumerate(train_runs.items()):
+        assert [m.model_id for m in client.get_run(run_id).outputs.model_outputs] == [model_id]
+        model = client.get_logged_model(model_id)
+        assert model.source_run_id == run_id and model.params["lambda3"] == "0.0"
+        assert model.tags["mlflow.model.isExternal"] == "true"
+        assert model.tags["f2depth.model_path"] == f"models/depth_full/seed{seed}.pt"
+        results = {m.key: m.value for m in model.metrics if m.run_id == evaluation.info.run_id}
+        assert results["1_nyu_abs_rel"] == pytest.approx(doc["per_seed"][f"seed{seed}"]["nyu"]["abs_rel"])
+
+
+def test_the_compare_command_picks_the_newest_pipelines_evaluate_runs(mlflow_uri, monkeypatch, capsys):
+    """tools/mlflow_compare.py (`make mlflow-compare`): the evaluate runs of the newest pipeline, in the
+    order they ran, in MLflow's compare route; without Chromium one line says how to install it."""
+    sys.path.insert(0, str(ROOT / "tools"))
+    import mlflow_compare
+
+    ids = {}
+    for pid, exp_name in ((201, None), (202, "bluff-rain")):
+        _pipeline(monkeypatch, pid, exp_name)
+        for variant in ("full", "baseline"):
+            with tracking.stage_run("evaluate", {}, variant=variant) as run:
+                ids[(pid, variant)] = run.run_id
+        with tracking.stage_run("tables", {}, closes_pipeline=True):
+            pass
+    client = MlflowClient(tracking_uri=mlflow_uri)
+    experiment_id = client.get_experiment_by_name(tracking.EXPERIMENT).experiment_id
+    chosen = [r.info.run_id for r in mlflow_compare.evaluate_runs(client, experiment_id)]
+    assert chosen == [ids[(202, "full")], ids[(202, "baseline")]]
+    url = mlflow_compare.compare_url("http://127.0.0.1:5000", chosen, experiment_id)
+    assert url.startswith("http://127.0.0.1:5000/#/compare-runs?runs=%5B%22")
+    query = urllib.parse.parse_qs(url.split("?", 1)[1])
+    assert json.loads(query["runs"][0]) == chosen and json.loads(query["experiments"][0]) == [experiment_id]
+
+    monkeypatch.setattr(mlflow_compare.shutil, "which", lambda name: None)
+    assert mlflow_compare.main(["mlflow_compare.py", "--out", str(ROOT / "never.png")]) == 3
+    (line,) = [line for line in capsys.readouterr().err.splitlines() if "mlflow_compare" in line]
+    assert "Chromium not found" in line and "apt-get install chromium" in line

@@ -3,6 +3,7 @@ depth and pose from a still camera and from a wrong depth, and it must let train
 
 from __future__ import annotations
 
+import csv
 import importlib.util
 import json
 import math
@@ -132,8 +133,9 @@ def test_without_nyu_training_validates_on_the_held_out_tuples_and_says_so(tmp_p
                    str(tmp_path / "models2"), "--metrics", str(tmp_path / "metrics")])
     out = capsys.readouterr().out
     assert "held-out L_ph" in out and "still camera" in out and "val δ1" not in out
-    history = (tmp_path / "metrics" / "baseline" / "history.csv").read_text().splitlines()
-    assert "heldout_ph" in history[0].split(",")
+    with (tmp_path / "metrics" / "baseline" / "validation.csv").open() as fh:
+        measured = list(csv.DictReader(fh))
+    assert [r["epoch"] for r in measured] == ["0", "1", "2"] and all(r["heldout_ph"] != "" for r in measured)
 
     (prep / "val_tuples.csv").write_text("tuple_id,scene,target,prev,next,segments\n")  # no validation at all
     with pytest.raises(DataError, match=r"val_tuples.csv: no validation set: .*set prepare.val_share"):

@@ -2,16 +2,29 @@
 
 from __future__ import annotations
 
+import csv
+from pathlib import Path
+
 import pytest
 import torch
 import train_fakes
+import yaml
 
 from f2depth import epochs as ckpt
 from f2depth.depth import DepthModel, DepthModelConfig
-from f2depth.epochs import NonFiniteEpochError, history_csv
+from f2depth.epochs import NonFiniteEpochError, history_csv, write_history
 from f2depth.flow import PWCLite
 from f2depth.train.data import DataConfig, TupleDataset
-from f2depth.train.loop import HISTORY_COLUMNS, LoopConfig, fit, seed_everything
+from f2depth.train.diagnostics import DIAGNOSTIC_KEYS
+from f2depth.train.heldout import HELDOUT_KEYS
+from f2depth.train.loop import (
+    HISTORY_COLUMNS,
+    HISTORY_FILES,
+    VALIDATION_COLUMNS,
+    LoopConfig,
+    fit,
+    seed_everything,
+)
 from f2depth.train.schedule import LRSchedule
 from f2depth.train.step import StepConfig
 from f2depth.train.teacher import FlowTeacher
@@ -119,14 +132,47 @@ def test_all_non_finite_epoch_stops_the_loop_naming_the_term(dataset, tmp_path):
 
 
 def test_history_csv_columns_and_blanks():
+    columns = [*HISTORY_COLUMNS, *VALIDATION_COLUMNS[1:]]
     text = history_csv([{"epoch": 0, "val_a1": 0.25, "val_abs_rel": 0.5},
                         {"epoch": 1, "ph": 0.1234567, "total": 0.2, "lr": 1e-4, "seconds": 1.5}],
-                       HISTORY_COLUMNS)
+                       columns)
     lines = text.splitlines()
-    assert lines[0].split(",") == HISTORY_COLUMNS
-    assert lines[1].split(",")[HISTORY_COLUMNS.index("val_a1")] == "0.25"
-    assert lines[1].split(",")[HISTORY_COLUMNS.index("ph")] == ""
-    assert lines[2].split(",")[HISTORY_COLUMNS.index("ph")] == "0.123457"
+    assert lines[0].split(",") == columns
+    assert lines[1].split(",")[columns.index("val_a1")] == "0.25"
+    assert lines[1].split(",")[columns.index("ph")] == ""
+    assert lines[2].split(",")[columns.index("ph")] == "0.123457"
+
+
+def test_history_files_hold_the_measured_rows_with_every_plotted_column_full(dataset, tmp_path):
+    """Issue 52: DVC draws an empty cell as 0, so a column measured on some epochs only (validation every
+    ``val_every`` epochs) lives in validation.csv with only those epochs' rows, history.csv has every training
+    epoch, and no column dvc.yaml plots from them has an empty cell."""
+    def full_validate(model):  # every key the stage's validation may add (f2depth.train.run._measure)
+        return {**fake_validate(model), **dict.fromkeys(HELDOUT_KEYS, 0.1),
+                **dict.fromkeys(DIAGNOSTIC_KEYS, 0.2)}
+
+    cfg = LoopConfig(3, 2, LRSchedule.scaled([1e-4], [1], 3), seed=7, progress=False, val_every=2)
+    result = fit(new_model(), dataset, None, STEP, cfg, checkpoint=tmp_path / "h.pt", fingerprint="h",
+                 validate=full_validate)
+    files = {}
+    for name, columns in HISTORY_FILES.items():
+        write_history(tmp_path / name, result.history, columns)
+        with (tmp_path / name).open(newline="") as fh:
+            files[name] = list(csv.DictReader(fh))
+        assert list(files[name][0]) == list(columns), name
+    assert [r["epoch"] for r in files["history.csv"]] == ["1", "2", "3"]
+    assert [r["epoch"] for r in files["validation.csv"]] == ["0", "2", "3"]  # untrained, every 2nd, last
+    for name, rows in files.items():  # a column is measured on every row of its file or on none (a term off)
+        for column in rows[0]:
+            assert len({r[column] == "" for r in rows}) == 1, (name, column)
+    assert all(r["val_a1"] and r["train_a1"] and r["heldout_ph"] for r in files["validation.csv"])
+    dvc = yaml.safe_load((Path(__file__).resolve().parents[1] / "dvc.yaml").read_text())
+    plotted = [(Path(path).name, field) for plot in dvc["plots"] for spec in plot.values()
+               for path, fields in spec["y"].items() if path.startswith("metrics/train_depth/")
+               for field in ([fields] if isinstance(fields, str) else fields)]
+    assert len(plotted) >= 20
+    for name, field in plotted:
+        assert name in files and all(r[field] != "" for r in files[name]), (name, field)
 
 
 def test_fingerprint_covers_settings_and_files(tmp_path):

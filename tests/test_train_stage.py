@@ -15,8 +15,9 @@ import yaml
 from f2depth import params as P
 from f2depth.data.errors import DataError
 from f2depth.depth import load_checkpoint, read_checkpoint
+from f2depth.io import OUTPUT_MARKER
 from f2depth.train.settings import settings_from_params
-from f2depth.train.step import TERMS
+from f2depth.train.step import TERMS, WEIGHT_KEYS
 
 STAGE = Path(__file__).resolve().parents[1] / "stages" / "train_depth.py"
 
@@ -48,10 +49,10 @@ def test_variant_weights_are_loss_weights_with_the_terms_it_is_without_at_zero(s
     assert nof.weights == {**full.weights, "feature": 0.0} and nof.without == ("feature",)
     assert base.weights == {**full.weights, "rigid": 0.0, "feature": 0.0} and base.flow_model is None
     assert full.flow_model.endswith("flow.pt") and full.without == () and full.seeds == (3, 1)
-    p["loss_weights"]["feature"] = 0.5  # what `dvc exp run -S loss_weights.feature=0.5` changes
+    p["lambda3"] = 0.5  # what `dvc exp run -S lambda3=0.5` changes
     assert settings_from_params(p, "full").weights["feature"] == 0.5
     assert settings_from_params(p, "no_feature").weights["feature"] == 0.0  # its switched-off term stays off
-    p["loss_weights"]["smooth"] = 0.01
+    p["lambda1"] = 0.01
     assert settings_from_params(p, "baseline").weights == {**base.weights, "smooth": 0.01}
 
 
@@ -70,11 +71,9 @@ def test_variant_weights_are_loss_weights_with_the_terms_it_is_without_at_zero(s
     ("full", lambda p: p["variants"]["full"].update(flow_model="models/x.pt"),
      "variants.full: unknown keys ['flow_model']; known: flow, without"),
     ("full", lambda p: p["variants"]["full"].pop("without"), "missing parameter 'variants.full.without'"),
-    ("baseline", lambda p: p["loss_weights"].update(featur=0.0),
-     "loss_weights: unknown keys ['featur']; loss_weights.featur: did you mean feature?"),
-    ("baseline", lambda p: p["loss_weights"].pop("planar"), "missing parameter 'loss_weights.planar'"),
-    ("baseline", lambda p: p["loss_weights"].update(rigid=-1),
-     "loss_weights.rigid is -1.0; set it to a value >= 0"),  # checked even where the term is off
+    ("baseline", lambda p: p.pop("lambda2"), "missing parameter 'lambda2'"),
+    ("baseline", lambda p: p.update(lambda_rigid=-1),
+     "lambda_rigid is -1.0; set it to a value >= 0"),  # checked even where the term is off
 ])  # fmt: skip
 def test_variant_errors_are_one_line_naming_the_key(setup, variant, edit, expected):
     _, path = setup
@@ -91,7 +90,7 @@ def test_stage_trains_every_seed_and_writes_outputs(setup, monkeypatch):
     stage.main(["train_depth.py", "--variant", "full", "--params", str(path),
                 "--models", str(root / "models"), "--metrics", str(root / "metrics")])
     out = root / "models" / "depth_full"
-    assert sorted(f.name for f in out.iterdir()) == ["model.pt", "seed1.pt", "seed3.pt"]
+    assert sorted(f.name for f in out.iterdir()) == [OUTPUT_MARKER, "model.pt", "seed1.pt", "seed3.pt"]
     assert (out / "model.pt").read_bytes() == (out / "seed3.pt").read_bytes()  # the first listed seed
     ck = read_checkpoint(out / "seed1.pt")
     assert ck["seed"] == 1 and ck["variant"] == "full"
@@ -106,7 +105,11 @@ def test_stage_trains_every_seed_and_writes_outputs(setup, monkeypatch):
     assert 0.0 <= m["val_untrained"]["a1"] <= 1.0 and 0.0 <= m["val_trained"]["a1"] <= 1.0
     with (root / "metrics" / "full" / "history.csv").open() as fh:
         rows = list(csv.DictReader(fh))
-    assert [r["epoch"] for r in rows] == ["0", "1"] and rows[0]["ph"] == "" and float(rows[1]["ph"]) > 0
+    assert [r["epoch"] for r in rows] == ["1"] and float(rows[0]["ph"]) > 0  # the training epochs
+    with (root / "metrics" / "full" / "validation.csv").open() as fh:
+        rows = list(csv.DictReader(fh))
+    assert [r["epoch"] for r in rows] == ["0", "1"]  # the measured epochs: untrained and trained
+    assert all(r[k] != "" for r in rows for k in ("val_a1", "val_abs_rel", "train_a1", "pose_rot_err"))
     assert not list((root / "ckpt" / "full").glob("*.pt"))  # resume states removed after success
 
 
@@ -118,7 +121,7 @@ def test_a_failed_run_keeps_the_previous_models_and_a_new_one_replaces_them(setu
     stage.main(argv)
     out = root / "models" / "depth_baseline"
     before = {f.name: f.read_bytes() for f in out.iterdir()}
-    assert sorted(before) == ["model.pt", "seed1.pt", "seed3.pt"]
+    assert sorted(before) == [OUTPUT_MARKER, "model.pt", "seed1.pt", "seed3.pt"]
 
     import f2depth.train.run as run_module
     real_fit, calls = run_module.fit, []
@@ -140,7 +143,7 @@ def test_a_failed_run_keeps_the_previous_models_and_a_new_one_replaces_them(setu
     params["train_depth"]["seeds"] = [3]
     path.write_text(yaml.safe_dump(params))
     stage.main(argv)
-    assert sorted(f.name for f in out.iterdir()) == ["model.pt", "seed3.pt"]  # the stale seed is gone
+    assert sorted(f.name for f in out.iterdir()) == [OUTPUT_MARKER, "model.pt", "seed3.pt"]  # stale seed gone
 
 
 def test_init_depth_setting(setup):
@@ -189,7 +192,7 @@ def test_repository_variants_are_consistent_with_dvc_yaml():
     for name, without in expected.items():
         s = settings_from_params(p, name)
         assert s.without == without, name
-        assert s.weights == {t: 0.0 if t in without else p["loss_weights"][t] for t in TERMS}, name
+        assert s.weights == {t: 0.0 if t in without else p[WEIGHT_KEYS[t]] for t in TERMS}, name
         assert (s.flow_model is None) == (name == "baseline"), name
     stage = yaml.safe_load((root / "dvc.yaml").read_text())["stages"]["train_depth"]
     tracked = {name: v["flow"] or "stages/train_depth.py" for name, v in p["variants"].items()}

@@ -39,7 +39,7 @@ from f2depth.train.step import (
 )
 from f2depth.train.teacher import FlowTeacher, TeacherOutput
 
-#: The CPU default's weights (params.yaml loss_weights), for the tiny set's superpixels
+#: The CPU default's weights (f2depth.train.step.WEIGHT_KEYS), for the tiny set's superpixels
 STEP = StepConfig(train_fakes.WEIGHTS, min_area=10)
 
 HW = (48, 64)
@@ -135,7 +135,7 @@ def test_terms_and_monitor_only_terms(tiny):
     assert flow.flow.shape == (2, 2, 64, 64) and len(flow.feats_tgt) == 6
     assert [f.shape[1] for f in flow.feats_src] == [16, 32, 64, 96, 128, 192]
     terms = loss_terms(net, tiny["batch"], flow, cfg)
-    assert set(terms) == {"ph", *TERMS}  # named as their weights (params.yaml loss_weights)
+    assert set(terms) == {"ph", *TERMS}  # named as their weights (f2depth.train.step.WEIGHT_KEYS)
     assert all(math.isfinite(float(v.detach())) for v in terms.values())
     assert terms["rigid"].requires_grad and not terms["feature"].requires_grad  # weight 0: logged only
     baseline = loss_terms(net, tiny["batch"], None, cfg)  # no flow network: no flow terms

@@ -19,6 +19,7 @@ from f2depth.data.errors import DataError
 from f2depth.data.nyu_raw import list_frames, read_frame
 from f2depth.data.training_video import training_video
 from f2depth.ingest.camera_files import read_camera_file
+from f2depth.io import OUTPUT_MARKER
 from f2depth.synth import OutputPaths, SynthConfig, generate
 from f2depth.synth.clips import ClipsParams, clip_frames, write_clips
 
@@ -144,7 +145,7 @@ def test_without_clips_the_nyu_route_ingests_nothing_and_the_video_route_stops(w
     stage = _stage("ingest")
     stage.main(["ingest.py", str(_params(tmp_path, empty))])
     assert json.loads((tmp_path / "metrics" / "ingest.json").read_text())["scenes"] == 0
-    assert [p.name for p in (tmp_path / "ingested").iterdir()] == ["README.txt"]
+    assert sorted(p.name for p in (tmp_path / "ingested").iterdir()) == [OUTPUT_MARKER, "README.txt"]
     params = _params(tmp_path, empty, train_source="video")
     with pytest.raises(SystemExit) as info:
         stage.run_stage("ingest", stage.main, ["ingest.py", str(params)])

@@ -19,10 +19,12 @@ from f2depth.flow import PWCLite, save_flow_model
 from f2depth.keypoints import save_keypoints
 from f2depth.params import load as load_params
 from f2depth.train.settings import loss_weights
+from f2depth.train.step import WEIGHT_KEYS
 
 HW = (64, 64)
-#: The weight of every term of L_depth in the repository's params.yaml (``loss_weights``: the CPU default's),
-#: for a StepConfig in tests; read from there, so a new term with its weight needs no change here.
+#: The weight of every term of L_depth in the repository's params.yaml (``lambda1``, ``lambda2``,
+#: ``lambda_rigid``, ``lambda3``: the CPU default's), for a StepConfig in tests; read from there, so a new
+#: term with its weight needs no change here.
 WEIGHTS = loss_weights(load_params(Path(__file__).resolve().parents[1] / "params.yaml"))
 
 
@@ -99,11 +101,13 @@ def write_params(root: Path, prepared: Path, mat: Path, splits: Path, flow: Path
           "imagenet_weights": None, "augment": True, "seeds": [0], "workers": 0, "val_max_images": 2,
           "val_every": 1, "state_every": 1, "resume_dir": str(root / "ckpt"), "amp": False,
           "init_depth": None,
-          "pose_prior": "none", "sync_bn": True, "diagnostic_tuples": 64, "teacher_memo_mb": 64}
+          "pose_prior": "none", "sync_bn": True, "diagnostic_tuples": 64, "teacher_memo_mb": 64,
+          "teacher": "network"}
     td.update(train)
     flow_s = str(flow) if flow else None
     params = {
-        "loss_weights": {**WEIGHTS, "flow_smooth": 50}, "device": "cpu", "threads": 1,
+        **{WEIGHT_KEYS[t]: w for t, w in WEIGHTS.items()}, "lambda_flow_smooth": 50,
+        "device": "cpu", "threads": 1,
         "allow_random_init": True, "flow_pretrain": {"checkpoint": None},
         "data": {"prepared": str(prepared), "keypoints": str(prepared.parent / "keypoints"),
                  "nyu_labeled": str(mat), "nyu_splits": str(splits)},

@@ -12,8 +12,9 @@ follow one marker comment. ``params`` moves above ``deps``, so that a stage open
 
 train_depth's ``foreach`` items are written from params.yaml ``variants``: the flow model DVC tracks (the
 stage script for a variant without one) and, per term of L_depth (``f2depth.train.step.TERMS``), the
-``loss_weights`` key it trains with, or its own ``variants.<name>`` entry for a term it trains without, so
-that ``dvc exp run -S loss_weights.feature=0`` retrains exactly the variants that use L_feature.
+weight's key it trains with (``lambda1``, ..., ``f2depth.train.step.WEIGHT_KEYS``), or its own
+``variants.<name>`` entry for a term it trains without, so that ``dvc exp run -S lambda3=0`` retrains exactly
+the variants that use L_feature.
 """
 
 from __future__ import annotations
@@ -23,8 +24,6 @@ import re
 import sys
 from collections.abc import Iterable
 from pathlib import Path
-
-import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE_ROOT = "f2depth/__init__.py"
@@ -129,7 +128,7 @@ def is_code(dep: str) -> bool:
 
 def stage_scripts(dvc_yaml: Path) -> dict[str, str]:
     """Stage name → its script (``python stages/<x>.py …`` in ``cmd``)."""
-    spec = yaml.safe_load(dvc_yaml.read_text())["stages"]
+    spec = _load_yaml(dvc_yaml)["stages"]
     out = {}
     for name, stage in spec.items():
         body = stage.get("do", stage)
@@ -139,7 +138,7 @@ def stage_scripts(dvc_yaml: Path) -> dict[str, str]:
 
 def declared_code_deps(dvc_yaml: Path) -> dict[str, list[str]]:
     """Stage name → the code deps dvc.yaml lists (files and folders under ``stages/`` and ``f2depth/``)."""
-    spec = yaml.safe_load(dvc_yaml.read_text())["stages"]
+    spec = _load_yaml(dvc_yaml)["stages"]
     return {name: [d for d in stage.get("do", stage)["deps"] if is_code(d)] for name, stage in spec.items()}
 
 
@@ -199,25 +198,35 @@ def _deps_block(block: list[str], indent: int, code: Iterable[str]) -> list[str]
     return comments + [head[0]] + kept + code_lines
 
 
+def _load_yaml(path: Path) -> dict:
+    """A YAML file read as f2depth reads every YAML (f2depth.params.load_yaml: aliases that expand to a
+    bomb are refused)."""
+    sys.path.insert(0, str(ROOT))
+    from f2depth.params import load_yaml
+
+    return load_yaml(path.read_text())
+
+
 def _variant_items(root: Path, indent: int) -> list[str]:
     """train_depth's ``foreach`` mapping from params.yaml ``variants``."""
-    variants = yaml.safe_load((root / "params.yaml").read_text())["variants"]
+    variants = _load_yaml(root / "params.yaml")["variants"]
     pad = " " * indent
     lines = [f"{pad}foreach:"]
     for name, v in variants.items():
         lines.append(f"{pad}  {name}:")
         lines.append(f"{pad}    flow: {v.get('flow') or 'stages/train_depth.py'}")
-        for term in _terms(root):
-            key = f"variants.{name}" if term in (v.get("without") or ()) else f"loss_weights.{term}"
+        for term, weight_key in _weight_keys(root).items():
+            key = f"variants.{name}" if term in (v.get("without") or ()) else weight_key
             lines.append(f"{pad}    {term}: {key}")
     return lines
 
 
-def _terms(root: Path) -> tuple[str, ...]:
+def _weight_keys(root: Path) -> dict[str, str]:
+    """Each term of L_depth (in f2depth.train.step.TERMS's order) → the params key of its weight."""
     sys.path.insert(0, str(root))
-    from f2depth.train.step import TERMS
+    from f2depth.train.step import TERMS, WEIGHT_KEYS
 
-    return TERMS
+    return {term: WEIGHT_KEYS[term] for term in TERMS}
 
 
 def _term_params(block: list[str], root: Path) -> list[str]:
@@ -226,7 +235,7 @@ def _term_params(block: list[str], root: Path) -> list[str]:
     kept = [line for line in block if "${item." not in line]
     at = next(i for i, line in enumerate(kept) if line.strip() == "- variants.${key}")
     pad = " " * _indent(kept[at])
-    return kept[: at + 1] + [f"{pad}- ${{item.{t}}}" for t in _terms(root)] + kept[at + 1:]
+    return kept[: at + 1] + [f"{pad}- ${{item.{t}}}" for t in _weight_keys(root)] + kept[at + 1:]
 
 
 def rewrite(text: str, root: Path = ROOT) -> str:

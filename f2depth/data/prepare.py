@@ -380,7 +380,7 @@ def prepare(nyu_raw: str | os.PathLike, nyu_labeled: str | os.PathLike, nyu_spli
                       f"out {MIN_HELD_OUT} frames and keep a training tuple, all their frames train: "
                       f"{', '.join(whole[:5])}", stacklevel=2)
 
-    with atomic_dir(out) as tmp:
+    with atomic_dir(out, "prepare", owned=True) as tmp:  # DVC's output (data.prepared)
         jobs = [_Job(t, tmp, config, camera) for tasks in per_scene.values() for t in tasks]
         results = [r for r in map_jobs(_run_job, jobs, config.workers, "prepare", progress) if r is not None]
         n_tuples, n_val, n_pairs = _write_tables(tmp, per_scene, config, camera)

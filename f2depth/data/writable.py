@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import tempfile
+from collections.abc import Iterable
 from pathlib import Path
 
 from f2depth.data.errors import DataError
@@ -36,3 +37,26 @@ def check_output_file(path: str | os.PathLike, option: str = "--output") -> Path
         raise DataError(p, "is a directory", f"give {option} a file name, not a folder")
     check_output_folder(p.parent if str(p.parent) else ".", option)
     return p
+
+
+def check_apart(inputs: Iterable[str | os.PathLike | None], output: str | os.PathLike,
+                option: str = "--output", inside_ok: bool = False) -> None:
+    """Refuse an output folder that is an input, holds one (replacing the folder with the run's output
+    would delete it) or — unless ``inside_ok`` — lies inside an input folder; links are followed, None
+    inputs skipped. DataError naming the output, the input and ``option``, before anything is written."""
+    out = Path(output).resolve()
+    lost = "which replacing the output folder with this run's would delete"
+    for given in inputs:
+        if given is None:
+            continue
+        src = Path(given).resolve()
+        if src == out:
+            problem = f"is the input {given}, {lost}"
+        elif out in src.parents:
+            problem = f"holds the input {given}, {lost}"
+        elif src in out.parents and not inside_ok:
+            problem = f"lies inside the input {given}"
+        else:
+            continue
+        raise DataError(output, problem,
+                        f"give {option} a folder apart from the inputs (nothing was changed)")

@@ -34,7 +34,7 @@ from f2depth.depth.encoder import ResnetEncoder
 from f2depth.depth.pose import PoseDecoder
 from f2depth.depth.resnet import BLOCKS, load_imagenet_resnet
 from f2depth.geometry import MAX_DEPTH, MIN_DEPTH, invert_pose, pose_from_params
-from f2depth.io import load_weights, torch_save
+from f2depth.io import damaged_weights, load_weights, torch_save, weights_digest
 
 CHECKPOINT_FORMAT = "f2depth.depth"
 CHECKPOINT_VERSION = 1
@@ -170,14 +170,16 @@ class DepthModel(nn.Module):
 
 def save_checkpoint(path: str | os.PathLike, model: DepthModel, params: dict[str, Any] | None = None,
                     **extra: Any) -> None:
-    """Write ``{"format": "f2depth.depth", "version": 1, "state_dict", "config", "params", **extra}``
-    atomically (docs/formats.md, Models). ``extra`` may hold e.g. optimizer state or the epoch."""
-    reserved = {"format", "version", "state_dict", "config", "params"} & set(extra)
+    """Write ``{"format": "f2depth.depth", "version": 1, "state_dict", "weights_sha256", "config", "params",
+    **extra}`` atomically (docs/formats.md, Models; ``weights_sha256``: :func:`f2depth.io.weights_digest` of
+    the state dict, checked on load). ``extra`` may hold e.g. optimizer state or the epoch."""
+    reserved = {"format", "version", "state_dict", "weights_sha256", "config", "params"} & set(extra)
     if reserved:
         raise ValueError(f"save_checkpoint: extra keys {sorted(reserved)} clash with the checkpoint format")
-    ckpt = {"format": CHECKPOINT_FORMAT, "version": CHECKPOINT_VERSION,
-            "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()},
-            "config": model.config.to_dict(), "params": dict(params or {}), **extra}
+    state = {k: v.detach().cpu() for k, v in model.state_dict().items()}
+    ckpt = {"format": CHECKPOINT_FORMAT, "version": CHECKPOINT_VERSION, "state_dict": state,
+            "weights_sha256": weights_digest(state), "config": model.config.to_dict(),
+            "params": dict(params or {}), **extra}
     torch_save(path, ckpt)
 
 
@@ -274,4 +276,7 @@ def model_from_checkpoint(ckpt: dict[str, Any], path: str | os.PathLike,
     if result.missing_keys or result.unexpected_keys:
         raise CheckpointError(f"{path}: state_dict does not match DepthModel({config}): missing "
                          f"{result.missing_keys[:5]}, unexpected {result.unexpected_keys[:5]}")
+    damage = damaged_weights(path, ckpt, "re-run the stage that wrote it (`dvc repro train_depth`)")
+    if damage:
+        raise CheckpointError(damage)
     return model.to(map_location)

@@ -8,11 +8,13 @@ name and shape checks. Written from the architecture of He et al. 2016 (BasicBlo
 from __future__ import annotations
 
 import os
-import pickle
 from pathlib import Path
 
 import torch
 from torch import nn
+
+from f2depth.data.errors import CheckpointError
+from f2depth.io import load_weights
 
 #: Blocks per stage for the supported depths (BasicBlock networks).
 BLOCKS = {18: (2, 2, 2, 2), 34: (3, 4, 6, 3)}
@@ -135,21 +137,24 @@ def load_imagenet_resnet(path: str | os.PathLike, num_layers: int = 18) -> dict[
     Returns the state_dict after checking that it holds exactly the backbone's tensors (plus ``fc``).
     """
     path = Path(path)
+    fix = (f"set train_depth.imagenet_weights to a torchvision resnet{num_layers} .pth file, or to null for "
+           "random initialisation")
     if not path.is_file():
-        raise FileNotFoundError(f"{path}: ImageNet weights not found; set train_depth.imagenet_weights to a "
-                                f"torchvision resnet{num_layers} .pth file, or to null for random "
-                                f"initialisation")
-    try:
-        obj = torch.load(path, map_location="cpu", weights_only=True)
-    except (RuntimeError, OSError, ValueError, pickle.UnpicklingError) as exc:
-        raise ValueError(f"{path}: cannot be read as a torch state_dict ({exc})") from exc
+        raise FileNotFoundError(f"{path}: ImageNet weights not found; {fix}")
+    try:  # torch's advice to load with weights_only=False (running the file's pickled code) is not passed on
+        obj = load_weights(path, f"a torchvision resnet{num_layers} state_dict", fix)
+    except ValueError as exc:
+        raise CheckpointError(str(exc)) from None
     if isinstance(obj, dict) and "state_dict" in obj and isinstance(obj["state_dict"], dict):
         obj = obj["state_dict"]
     if not isinstance(obj, dict) or not all(isinstance(v, torch.Tensor) for v in obj.values()):
-        raise ValueError(f"{path}: expected a dict of tensors (a torchvision resnet{num_layers} state_dict)")
-    # Validate names and shapes against a reference network with a 1000-class classifier.
-    ResNet(
-        num_layers, 3, num_classes=obj["fc.weight"].shape[0] if "fc.weight" in obj else None
-    ).load_imagenet(obj, source=str(path))
+        raise CheckpointError(path, f"expected a dict of tensors (a torchvision resnet{num_layers} "
+                                    "state_dict)", fix)
+    try:  # names and shapes against a reference network with a 1000-class classifier
+        ResNet(
+            num_layers, 3, num_classes=obj["fc.weight"].shape[0] if "fc.weight" in obj else None
+        ).load_imagenet(obj, source=str(path))
+    except (ValueError, RuntimeError) as exc:
+        raise CheckpointError(f"{' '.join(str(exc).split())}; {fix}") from None
     return obj
 

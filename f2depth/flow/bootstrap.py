@@ -47,9 +47,12 @@ from f2depth.flow.network import FlowNetwork, make_optimizer, msra_init
 from f2depth.precision import autocast, backward_and_step
 from f2depth.synth.chairs import ChairsSpec, render_pairs
 
-HISTORY_COLUMNS = ("epoch", "phase", "loss", "epe", "matching", "top1_s4", "top1_s8", "steps",
-                   "skipped_steps", "heldout_epe", "heldout_zero_epe", "heldout_swap", "heldout_top1_s4",
-                   "heldout_top1_s8", "seconds")
+#: history.csv: what every epoch measures (f2depth.epochs.write_history)
+HISTORY_COLUMNS = ("epoch", "phase", "loss", "matching", "top1_s4", "top1_s8", "steps", "skipped_steps",
+                   "heldout_epe", "heldout_zero_epe", "heldout_top1_s4", "heldout_top1_s8", "seconds")
+#: phase_b.csv: what phase B's epochs add, the training EPE and the held-out swap consistency (phase A's
+#: zero flow has no direction)
+PHASE_B_COLUMNS = ("epoch", "epe", "heldout_swap")
 EPOCH_TEST_PAIRS = 16  # held-out pairs scored after every epoch (all of them after phase A and at the end)
 
 

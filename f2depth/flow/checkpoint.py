@@ -28,7 +28,7 @@ import torch
 from f2depth.data.errors import CheckpointError
 from f2depth.flow.network import FlowNetwork
 from f2depth.flow.pwclite import PWCLite
-from f2depth.io import load_weights
+from f2depth.io import damaged_weights, load_weights, torch_save, weights_digest
 
 #: Every flow network by the name that params.yaml (``flow_pretrain.network``) and checkpoints use.
 NETWORKS: dict[str, type[FlowNetwork]] = {"pwclite": PWCLite}
@@ -120,13 +120,13 @@ def save_flow_model(path: str | os.PathLike, model: FlowNetwork, config: Mapping
                     params: Mapping[str, Any] | None = None) -> None:
     """Write our checkpoint atomically: format, version, the network's registry name and
     ``architecture()``, CPU state dict, ``config`` (how it was made) and the ``params`` section that made
-    it (plain YAML types only)."""
-    from f2depth.io import torch_save
-
+    it (plain YAML types only); ``weights_sha256`` (:func:`f2depth.io.weights_digest` of the state dict)
+    lets loaders refuse a file damaged after it was written."""
     state = {k: v.detach().cpu().contiguous() for k, v in model.state_dict().items()}
     torch_save(path, {"format": FORMAT, "version": VERSION, "network": network_name(model),
                       "network_kwargs": dict(model.architecture()), "state_dict": state,
-                      "config": dict(config or {}), "params": dict(params or {})})
+                      "weights_sha256": weights_digest(state), "config": dict(config or {}),
+                      "params": dict(params or {})})
 
 
 def _network_of(obj: Mapping[str, Any], path: str | os.PathLike) -> tuple[str, dict[str, Any]]:
@@ -160,6 +160,10 @@ def read_flow_checkpoint(path: str | os.PathLike, network: str = DEFAULT_NETWORK
     if isinstance(obj, Mapping) and "format" in obj:
         name, kwargs = _network_of(obj, path)
         sd = extract_state_dict(obj.get("state_dict"), path)
+        damage = damaged_weights(path, obj, "re-run the stage that wrote it (`dvc repro flow_pretrain`, "
+                                            "`dvc repro flow_finetune`)")
+        if damage:
+            raise CheckpointError(damage)
         meta = {"format": obj["format"], "version": obj["version"], "network": name, "network_kwargs": kwargs,
                 "config": dict(obj.get("config") or {}), "params": dict(obj.get("params") or {})}
     else:

@@ -64,7 +64,7 @@ class FinetuneConfig:
     patch_spacing: int = 2
     w_scales: tuple[float, ...] = (1.0, 1.0, 1.0, 1.0, 0.0)  # patch: weight per level, finest first (ARFlow)
     backward: bool = True             # patch: also the backward term (ARFlow's with_bk)
-    smooth_weight: float = 50.0       # loss_weights.flow_smooth
+    smooth_weight: float = 50.0       # params.yaml lambda_flow_smooth
     occlusion: str = "range_map"  # ARFlow's warm-up; "forward_backward": the paper's check
     augment: bool = True
     amp: bool = False                 # autocast the network (CUDA float16, CPU bfloat16)

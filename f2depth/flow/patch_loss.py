@@ -78,7 +78,7 @@ class FinetuneLossConfig:
     spacing: int = 2                  # N
     w_scales: tuple[float, ...] = (1.0,)  # photometric weight per flow level, finest first; missing = 0
     backward: bool = False            # also the backward term (ARFlow's with_bk), averaged with the forward
-    smooth_weight: float = 50.0       # λ = loss_weights.flow_smooth
+    smooth_weight: float = 50.0       # λ = params.yaml lambda_flow_smooth
     alpha: float = 10.0               # edge-awareness of the smoothness weights (ARFlow)
     occlusion: str = "forward_backward"  # or "range_map" (ARFlow's warm-up check)
     fb_scale: float = 0.01            # forward–backward occlusion check (ARFlow)

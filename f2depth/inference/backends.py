@@ -7,6 +7,7 @@ depth (B,1,h,w) in the network's nominal metres (``[min_depth, max_depth]``, rel
 
 from __future__ import annotations
 
+import ast
 import os
 from pathlib import Path
 from typing import Any, Protocol
@@ -31,6 +32,7 @@ class DepthBackend(Protocol):
     name: str
     source: str
     input_hw: tuple[int, int]
+    trained_hw: tuple[int, int] | None  # the model's training size (None: an export that does not say)
     min_depth: float
     max_depth: float
 
@@ -66,6 +68,7 @@ class TorchBackend:
         self.device = device
         self.source = source
         self.input_hw = (model.config.height, model.config.width)
+        self.trained_hw = self.input_hw
         self.min_depth, self.max_depth = model.config.min_depth, model.config.max_depth
 
     @classmethod
@@ -112,6 +115,7 @@ class OnnxBackend:
         meta = self.session.get_modelmeta().custom_metadata_map
         self._check(p, meta)
         self.input_hw = (int(meta["height"]), int(meta["width"]))
+        self.trained_hw = _trained_hw(meta)
         self.min_depth, self.max_depth = float(meta["min_depth"]), float(meta["max_depth"])
 
     def _check(self, p: Path, meta: dict[str, Any]) -> None:
@@ -136,6 +140,32 @@ class OnnxBackend:
         x = np.ascontiguousarray(img.detach().cpu().numpy(), dtype=np.float32)
         (out,) = self.session.run([ONNX_OUTPUT], {ONNX_INPUT: x})
         return torch.from_numpy(out)
+
+
+def _trained_hw(meta: dict[str, Any]) -> tuple[int, int] | None:
+    """The training size an export's metadata records (``trained_height``/``trained_width``, or exports
+    before those: the ``config`` dict's height and width), None when it has neither."""
+    if "trained_height" in meta and "trained_width" in meta:
+        return int(meta["trained_height"]), int(meta["trained_width"])
+    try:
+        config = ast.literal_eval(meta.get("config", ""))
+        return int(config["height"]), int(config["width"])
+    except (ValueError, SyntaxError, TypeError, KeyError, MemoryError, RecursionError):
+        return None
+
+
+def size_mismatch(backend: DepthBackend) -> str | None:
+    """One warning line when ``backend`` runs the network at another size than the model was trained at (an
+    export with --height/--width): its depth then differs from the model's, so ``--model`` and ``--onnx``
+    disagree on the same input. None when the sizes agree or the export does not record its training size."""
+    trained = getattr(backend, "trained_hw", None)
+    if trained is None or tuple(trained) == tuple(backend.input_hw):
+        return None
+    (h, w), (th, tw) = backend.input_hw, trained
+    return (f"{backend.source or backend.name} runs the network at {h}×{w}, but the model was trained at "
+            f"{th}×{tw}: its depth is not the model's (the network sees objects at other sizes), so it "
+            "differs from `--model`'s on the same input; export at the training size (`f2depth export` "
+            "without --height/--width) for the model's depth")
 
 
 def load_backend(model: str | os.PathLike | None = None, onnx: str | os.PathLike | None = None,

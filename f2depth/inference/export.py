@@ -98,6 +98,7 @@ def export_onnx(model: DepthModel, path: str | os.PathLike, height: int | None =
     model = model.eval().cpu()
     proto = onnx.load_from_string(_onnx_bytes(model, (h, w), opset))
     meta = {"format": ONNX_FORMAT, "version": str(ONNX_VERSION), "height": str(h), "width": str(w),
+            "trained_height": str(model.config.height), "trained_width": str(model.config.width),
             "min_depth": repr(model.config.min_depth), "max_depth": repr(model.config.max_depth),
             "source": str(source), "config": repr(model.config.to_dict())}
     for key, value in meta.items():

@@ -1,6 +1,7 @@
 """Per-frame output files of ``f2depth predict``, each written atomically (f2depth.io):
 
-- ``<name>_depth_mm.png``: uint16 depth in millimetres (0 = no depth, saturates at 65535 mm),
+- ``<name>_depth_mm.png``: uint16 depth in millimetres, 0 = no depth; a depth is clipped to [1, 65534] mm,
+  so that none reads back as missing (0, or the 65535 of 7-Scenes' convention),
 - ``<name>_depth.npy``: float32 (H, W) depth in metres,
 - ``<name>_depth_color.png``: the disparity (1/depth) colour-mapped with magma (minimum → black,
   95th percentile → white),
@@ -22,7 +23,8 @@ from f2depth.geometry import backproject
 from f2depth.io import imwrite, save_npy, write_bytes
 
 SUFFIXES = {"mm": "_depth_mm.png", "npy": "_depth.npy", "color": "_depth_color.png", "ply": "_points.ply"}
-MM_MAX = 65535
+#: the largest depth a ``_depth_mm.png`` holds: 65535 is the "no depth" code of Kinect-style depth PNGs
+MM_MAX = 65534
 #: horizontal focal length per image width of the NYU Depth V2 RGB camera (the training data)
 NYU_FX_PER_WIDTH = float(NYU_RGB_K[0, 0]) / NYU_SIZE_HW[1]
 _PLY_DTYPE = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1"), ("green", "u1"),
@@ -30,8 +32,18 @@ _PLY_DTYPE = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1"), 
 
 
 def depth_to_mm(depth: np.ndarray) -> np.ndarray:
-    """depth (H,W) metres → uint16 millimetres, rounded, clipped to [0, 65535]."""
-    return np.clip(np.rint(np.asarray(depth, np.float64) * 1000.0), 0, MM_MAX).astype(np.uint16)
+    """depth (H,W) metres → uint16 millimetres, rounded; a positive depth is clipped to [1, MM_MAX], so that
+    it never becomes a "no depth" code (0 or 65535); 0, negative and NaN depth → 0."""
+    d = np.asarray(depth, np.float64)
+    valid = d > 0
+    mm = np.clip(np.rint(np.where(valid, d, 0.0) * 1000.0), 1, MM_MAX)
+    return np.where(valid, mm, 0).astype(np.uint16)
+
+
+def mm_clipped(depth: np.ndarray) -> int:
+    """How many positive depths (H,W metres) :func:`depth_to_mm` clips: beyond MM_MAX mm, or below 0.5 mm."""
+    mm = np.rint(np.asarray(depth, np.float64) * 1000.0)
+    return int(np.count_nonzero((np.asarray(depth) > 0) & ((mm > MM_MAX) | (mm < 1))))
 
 
 def colorize_depth(depth: np.ndarray, percentile: float = 95.0) -> np.ndarray:

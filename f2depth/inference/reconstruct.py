@@ -9,6 +9,7 @@ input here, so the tensor API is used; ``UniformTSDFVolume`` works but needs the
 
 from __future__ import annotations
 
+import math
 import os
 import time
 from collections.abc import Sequence
@@ -28,6 +29,13 @@ from f2depth.io import atomic_path
 
 SCALINGS = ("sequence", "frame", "fixed")
 DEPTH_SOURCES = ("predicted", "reference")
+#: Bytes of TSDF memory per m² of observed surface, times the voxel size squared, per block of band: Open3D
+#: keeps 16³-voxel blocks of 20 bytes a voxel (tsdf, weight, 3 colours: float32), and the process peaks at
+#: about 2.3× the blocks' bytes (tests' box room at a 5 mm voxel, truncation 4 voxels: a band 1.2 blocks
+#: thick, 686 MB of blocks, 1.6 GB more resident memory).
+TSDF_BYTES_M2 = 16 * 20 * 2.3
+#: The cell (m) at which the observed surface is counted (:func:`seen_area`).
+AREA_CELL = 0.1
 
 
 @dataclass(frozen=True)
@@ -155,6 +163,60 @@ def frame_scales(ratios: Sequence[float | None], scaling: str, scale: float = 1.
     return [float(np.median(ratios))] * len(ratios)
 
 
+def seen_area(frames: Sequence[SequenceFrame], depths: Sequence[np.ndarray], scales: Sequence[float],
+              max_depth: float, stride: int = 2) -> float:
+    """The surface (m²) the frames see within ``max_depth``: every ``stride``-th pixel of each depth (H,W)
+    metres × its scale back-projected to the world, counted in cells of ``AREA_CELL`` m (each distinct cell
+    a wall crosses counts ``AREA_CELL``² of surface)."""
+    cells = []
+    for f, depth, k in zip(frames, depths, scales):
+        z = np.asarray(depth, np.float64)[::stride, ::stride] * k
+        v, u = np.mgrid[0:depth.shape[0]:stride, 0:depth.shape[1]:stride]
+        ok = np.isfinite(z) & (z > 0) & (z <= max_depth)
+        K, T = np.asarray(f.K, np.float64), np.asarray(f.world_T_cam, np.float64)
+        x, y = (u[ok] - K[0, 2]) / K[0, 0] * z[ok], (v[ok] - K[1, 2]) / K[1, 1] * z[ok]
+        world = np.stack([x, y, z[ok]], -1) @ T[:3, :3].T + T[:3, 3]
+        cells.append(np.unique(np.floor(world / AREA_CELL).astype(np.int64), axis=0))
+    found = np.unique(np.concatenate(cells), axis=0) if cells else np.zeros((0, 3))
+    return len(found) * AREA_CELL ** 2
+
+
+def memory_budget() -> int:
+    """Bytes the TSDF volumes may take: half of this machine's physical memory (4 GiB where unknown)."""
+    try:
+        return int(os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")) // 2
+    except (ValueError, OSError, AttributeError):
+        return 4 << 30
+
+
+def tsdf_bytes(area: float, voxel: float, trunc: float | None = None) -> float:
+    """The memory (bytes) of a TSDF of ``area`` m² of surface at ``voxel`` m with truncation ``trunc`` m
+    (default 4 voxels): the blocks of a band 0.8 · (1 + trunc / 8 voxels) blocks thick (1.2 at 4 voxels)."""
+    trunc = 4 * voxel if trunc is None else trunc
+    return area * TSDF_BYTES_M2 * 0.8 * (1 + trunc / (8 * voxel)) / voxel ** 2
+
+
+def check_voxel(area: float, tsdf: TSDFSettings, volumes: int = 1, budget: int | None = None) -> None:
+    """DataError naming ``--voxel`` when ``volumes`` TSDFs of ``area`` m² of surface would need more than
+    ``budget`` bytes (default :func:`memory_budget`), with the smallest voxel that fits."""
+    why = " (half of this machine's memory)" if budget is None else ""
+    budget = memory_budget() if budget is None else budget
+    voxel = tsdf.voxel
+    need = volumes * tsdf_bytes(area, voxel, tsdf.trunc)
+    if need > budget:
+        lo, hi = voxel, max(voxel, 1.0)
+        while volumes * tsdf_bytes(area, hi, tsdf.trunc) > budget:
+            hi *= 2
+        for _ in range(60):  # the memory falls as the voxel grows: bisect for the smallest that fits
+            mid = (lo + hi) / 2
+            lo, hi = (lo, mid) if volumes * tsdf_bytes(area, mid, tsdf.trunc) <= budget else (mid, hi)
+        smallest = hi
+        raise DataError("--voxel", f"a {voxel:g} m voxel needs about {need / 1e9:.3g} GB for the "
+                        f"{area:.0f} m² of surface these frames see ({volumes} volume(s)), more than the "
+                        f"{budget / 1e9:.3g} GB allowed{why}",
+                        f"the smallest voxel here is {math.ceil(smallest * 1e4) / 1e4:g} m")
+
+
 @dataclass(frozen=True)
 class ReconstructSettings:
     output: Path
@@ -214,6 +276,7 @@ def reconstruct(frames: Sequence[SequenceFrame], predictor: Predictor | None,
     depths, ratios = _predicted(frames, predictor, s, need_ref)
     scales = frame_scales(ratios, s.scaling if s.depth_source == "predicted" else "fixed",
                           s.scale if s.depth_source == "predicted" else 1.0)
+    check_voxel(seen_area(frames, depths, scales, s.tsdf.max_depth), s.tsdf, 2 if with_ref else 1)
     fused = TSDFFusion(s.tsdf)
     ref_fused = TSDFFusion(s.tsdf) if with_ref else None
     for f, depth, k in zip(frames, depths, tqdm(list(scales), desc="fuse", unit="frame",

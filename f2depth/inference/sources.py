@@ -183,6 +183,17 @@ def check_output_apart(source: str | os.PathLike, output: str | os.PathLike) -> 
                              "and colour maps as photos", f"give --output another folder (e.g. {src}_depth)")
 
 
+def decode_shortfall(where: str | os.PathLike, decoded: int, announced: int, done: str = "wrote those"
+                     ) -> str | None:
+    """The one warning line of a source that decoded fewer frames than it announced (``len`` of a
+    :class:`VideoSource`: a truncated or damaged video), ``done`` saying what was made of the rest
+    (``predict``: "wrote those", ``ingest``: "ingested from those"); None when nothing is missing."""
+    if not announced or decoded >= announced:
+        return None
+    return (f"{where}: only {decoded} of the {announced} frames its container announces could be decoded (a "
+            f"truncated or damaged file?); {done} {decoded}")
+
+
 def open_source(path: str | os.PathLike) -> ImageSource | VideoSource:
     """An image, a folder of images or a video → its frame source (nothing decoded yet except, for a
     video, the first frame as a check). Unknown paths and extensions → DataError."""

@@ -22,12 +22,18 @@ import cv2
 import numpy as np
 import yaml
 
-from f2depth.camera import RawCamera
+from f2depth.camera import RawCamera, undistorted_valid_share
 from f2depth.data.errors import DataError
 from f2depth.inference.outputs import intrinsics
+from f2depth.params import BoundedLoader, YamlBomb, load_yaml, short
 
 #: The 35 mm film frame (36 × 24 mm): its diagonal is what "35 mm equivalent" focal lengths refer to.
 FILM_DIAGONAL_MM = math.hypot(36.0, 24.0)
+#: A camera file's fx and fy must lie within these multiples of the image width (horizontal fields of view
+#: of about 157° to 6°): outside, the file is not this video's camera.
+FOCAL_PER_WIDTH = (0.1, 10.0)
+#: At least this share of an undistorted frame must come from inside the recorded frame (the rest is black).
+MIN_VALID_SHARE = 0.5
 EXIF_IFD, EXIF_FOCAL_35MM = 0x8769, 0xA405
 _FIX_FILE = ("a camera file holds fx, fy, cx, cy, width, height (and optionally dist: [k1, k2, p1, p2, k3]), "
              "or is COLMAP's cameras.txt or an OpenCV calibration YAML (docs/ingest.md)")
@@ -44,22 +50,47 @@ _COLMAP = {
 
 def _camera(path: Path, fx, fy, cx, cy, width, height, dist, what: str) -> RawCamera:
     values = [fx, fy, cx, cy, width, height, *dist]
-    try:
-        numbers = [float(v) for v in values]
-    except (TypeError, ValueError):
-        raise DataError(path, f"non-numeric intrinsics {values}", _FIX_FILE) from None
-    fx, fy, cx, cy, width, height = numbers[:6]
-    if not all(math.isfinite(v) for v in numbers) or min(fx, fy, width, height) <= 0:
-        raise DataError(path, f"intrinsics must be finite with fx, fy, width, height > 0, found {values}",
-                        _FIX_FILE)
     if len(dist) > 5:
         raise DataError(path, f"{len(dist)} distortion coefficients; OpenCV's model has k1 k2 p1 p2 k3",
                         _FIX_FILE)
+    try:
+        numbers = [float(v) for v in values]
+    except (TypeError, ValueError):
+        raise DataError(path, f"non-numeric intrinsics {short(values)}", _FIX_FILE) from None
+    fx, fy, cx, cy, width, height = numbers[:6]
+    if not all(math.isfinite(v) for v in numbers) or min(fx, fy, width, height) <= 0:
+        raise DataError(path, f"intrinsics must be finite with fx, fy, width, height > 0, found "
+                        f"{short(values)}", _FIX_FILE)
     coeffs = np.zeros(5)
     coeffs[:len(dist)] = numbers[6:]
     hw = (int(round(height)), int(round(width)))
-    return RawCamera(intrinsics(*hw, fx=fx, fy=fy, cx=cx, cy=cy), coeffs, hw,
-                  f"{what} {path}")
+    camera = RawCamera(intrinsics(*hw, fx=fx, fy=fy, cx=cx, cy=cy), coeffs, hw, f"{what} {path}")
+    check_plausible(camera, path)
+    return camera
+
+
+def check_plausible(camera: RawCamera, path: str | os.PathLike) -> None:
+    """Refuse a camera no lens has (DataError naming the file): the principal point outside the image, fx
+    or fy outside :data:`FOCAL_PER_WIDTH` × the width, or a distortion that leaves less than
+    :data:`MIN_VALID_SHARE` of an undistorted frame inside the recorded one (a k1 of 1e6 makes every frame
+    black)."""
+    (h, w), K = camera.hw, camera.K
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    if not (-0.5 <= cx <= w - 0.5 and -0.5 <= cy <= h - 0.5):
+        raise DataError(path, f"principal point ({cx:g}, {cy:g}) px lies outside the {w}×{h} image",
+                        "give cx, cy in pixels of this resolution (about the image centre)")
+    lo, hi = (k * w for k in FOCAL_PER_WIDTH)
+    if not (lo <= fx <= hi and lo <= fy <= hi):
+        raise DataError(path, f"focal length fx {fx:g}, fy {fy:g} px is outside {lo:g}–{hi:g} px "
+                        f"({FOCAL_PER_WIDTH[0]:g}–{FOCAL_PER_WIDTH[1]:g} × the width {w})",
+                        "give fx, fy in pixels of this resolution, or --fov DEG")
+    if np.any(camera.dist):
+        share = undistorted_valid_share(K, camera.dist, camera.hw)
+        if share < MIN_VALID_SHARE:
+            raise DataError(path, f"distortion {short(camera.dist.tolist())} leaves only {100 * share:.0f} % "
+                            f"of an undistorted frame inside the recorded one (at least "
+                            f"{100 * MIN_VALID_SHARE:.0f} %)", "check the coefficients' order and units "
+                            "(OpenCV's k1 k2 p1 p2 k3) or give --fov DEG")
 
 
 def _read_mapping(path: Path, data: dict) -> RawCamera:
@@ -91,12 +122,17 @@ def _read_colmap(path: Path, text: str) -> RawCamera:
 
 
 def _read_opencv_yaml(path: Path) -> RawCamera:
-    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
-    try:
-        K, dist = fs.getNode("camera_matrix").mat(), fs.getNode("distortion_coefficients").mat()
-        width, height = fs.getNode("image_width").real(), fs.getNode("image_height").real()
-    finally:
-        fs.release()
+    try:  # a damaged file: cv2.error, or SystemError from the binding
+        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+        try:
+            K, dist = fs.getNode("camera_matrix").mat(), fs.getNode("distortion_coefficients").mat()
+            width, height = fs.getNode("image_width").real(), fs.getNode("image_height").real()
+        finally:
+            fs.release()
+    except (cv2.error, SystemError) as exc:
+        text = " ".join(str(exc).split())
+        raise DataError(path, f"OpenCV cannot read this calibration file ({short(text, 120)})",
+                        _FIX_FILE) from None
     if K is None or K.shape != (3, 3) or not width or not height:
         raise DataError(path, "OpenCV calibration without camera_matrix (3×3), image_width and image_height",
                         _FIX_FILE)
@@ -111,18 +147,31 @@ def read_camera_file(path: str | os.PathLike) -> RawCamera:
     if not p.is_file():
         raise DataError(p, "camera file not found", "check --camera")
     text = p.read_text(errors="replace")
-    if text.lstrip().startswith("%YAML") or "camera_matrix" in text:
+    if text.lstrip().startswith("%YAML:"):  # the header cv2.FileStorage writes
         return _read_opencv_yaml(p)
-    if p.name.lower() == "cameras.txt" or text.lstrip().startswith("#") or (
-            text.split() and text.split()[1:2] and text.split()[1] in _COLMAP):
+    rows = [line.split() for line in text.splitlines() if line.strip() and not line.lstrip().startswith("#")]
+    if p.name.lower() == "cameras.txt" or (rows and rows[0][1:2] and rows[0][1] in _COLMAP):
         return _read_colmap(p, text)
-    try:
-        data = json.loads(text) if p.suffix.lower() == ".json" else yaml.safe_load(text)
+    try:  # the format is what the file holds, not a word in it (a comment may say "camera_matrix")
+        data = json.loads(text) if p.suffix.lower() == ".json" else load_yaml(text, _CameraLoader)
+    except YamlBomb as bomb:
+        raise DataError(p, bomb.problem, _FIX_FILE) from None
     except (json.JSONDecodeError, yaml.YAMLError) as exc:
-        raise DataError(p, f"not valid JSON/YAML ({' '.join(str(exc).split())[:120]})", _FIX_FILE) from None
+        raise DataError(p, f"not valid JSON/YAML ({short(' '.join(str(exc).split()), 120)})",
+                        _FIX_FILE) from None
     if not isinstance(data, dict):
         raise DataError(p, "not a mapping of fx, fy, cx, cy, width, height", _FIX_FILE)
+    if "camera_matrix" in data:  # an OpenCV calibration without its %YAML header
+        return _read_opencv_yaml(p)
     return _read_mapping(p, data)
+
+
+class _CameraLoader(BoundedLoader):
+    """:class:`~f2depth.params.BoundedLoader` that also reads OpenCV's ``!!opencv-matrix`` values (as
+    mappings), so that an OpenCV calibration is recognised by its keys."""
+
+
+_CameraLoader.add_constructor("tag:yaml.org,2002:opencv-matrix", BoundedLoader.construct_mapping)
 
 
 def from_fov(fov_deg: float, hw: tuple[int, int]) -> RawCamera:
@@ -182,6 +231,7 @@ def choose_camera(hw: tuple[int, int], first_file: Path, camera_file: str | os.P
         return from_fov(fov, hw)
     camera = from_exif(first_file, hw)
     if camera is not None:
+        check_plausible(camera, first_file)  # an EXIF focal length of 1 mm is no camera's either
         return camera
     if fallback is not None:
         return fallback()

@@ -9,7 +9,9 @@ first pass over them), shrunk to at most ``max_side`` px on the long side and wr
 ``<out>/<scene>/r-<seconds>-<index>.png``. ``<out>/camera.json`` holds the intrinsics of those frames
 (no distortion left; :func:`f2depth.data.nyu_raw.raw_camera` reads it), ``<out>/scenes.txt`` the scenes
 (``prepare.train_scenes_file``), ``<out>/ingest.json`` what was kept and dropped per scene. The folder is
-built aside and swapped in at the end: a failed ingest leaves nothing that looks valid.
+built aside and swapped in at the end: a failed ingest leaves nothing that looks valid. The output may not
+be, hold or lie inside an input, and replaces only a folder that is empty or an earlier ingest's (its
+marker, :func:`f2depth.io.check_replaceable`): nothing of the user's is ever deleted.
 """
 
 from __future__ import annotations
@@ -18,8 +20,8 @@ import os
 import re
 import time
 import warnings
-from collections.abc import Iterator, Sequence
-from dataclasses import asdict, dataclass, field
+from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
 import numpy as np
@@ -29,9 +31,11 @@ from f2depth.camera import RawCamera, crop_resize_intrinsics
 from f2depth.data.errors import DataError
 from f2depth.data.nyu_raw import CAMERA_FILE
 from f2depth.data.prepare import prepare_image
+from f2depth.data.writable import check_apart
 from f2depth.inference.sources import (
     VIDEO_EXTENSIONS,
     Frame,
+    decode_shortfall,
     image_files,
     open_source,
 )
@@ -94,14 +98,64 @@ def collect_inputs(paths: Sequence[str | os.PathLike]) -> list[_Input]:
         else:
             raise DataError(p, "not a video or a folder of images",
                             f"videos: {' '.join(VIDEO_EXTENSIONS)}; or a folder of images")
+    seen: dict[Path, Path] = {}
+    for p in found:  # one input twice (also through a folder, a link or another spelling): one scene
+        first = seen.setdefault(p.resolve(), p)
+        if first is not p:
+            raise DataError(p, f"is given twice (also as {first}), which would make two identical training "
+                            "scenes", "give each video or folder of images once")
     taken: set[str] = set()
     return [_Input(p, scene_name(p, taken)) for p in found]
 
 
-def _candidates(frames: Iterator[Frame], step: int) -> Iterator[tuple[int, Frame]]:
-    for index, frame in enumerate(frames):
-        if index % step == 0:
-            yield index, frame
+def earlier_ingest(folder: Path) -> bool:
+    """Whether ``folder`` looks like an ingest written before the output marker existed: ingest.json, and
+    nothing but camera.json, scenes.txt and scene folders of ``r-*.png`` frames beside it."""
+    if not (folder / "ingest.json").is_file():
+        return False
+    for entry in folder.iterdir():
+        if entry.is_dir():
+            frames = (f.is_file() and f.name.startswith("r-") and f.suffix == ".png" for f in entry.iterdir())
+            if not all(frames):
+                return False
+        elif entry.name not in ("ingest.json", CAMERA_FILE, "scenes.txt"):
+            return False
+    return True
+
+
+class _Candidates:
+    """Every ``step``-th frame of ``frames`` as (index, frame); ``decoded`` counts every frame read."""
+
+    def __init__(self, frames: Iterator[Frame], step: int) -> None:
+        self.frames, self.step, self.decoded = frames, step, 0
+
+    def __iter__(self) -> Iterator[tuple[int, Frame]]:
+        for index, frame in enumerate(self.frames):
+            self.decoded = index + 1
+            if index % self.step == 0:
+                yield index, frame
+
+
+def too_few_kept(path: Path, counts: dict[str, int], sampled: int, decoded: int, step: int, which: str,
+                 config: IngestConfig, names: Mapping[str, str]) -> DataError:
+    """The error of a scene that kept fewer than MIN_KEPT frames, blaming what dropped them: too few
+    candidates (the step), the blur filter, or a camera that hardly moves (the motion threshold).
+    ``which``: the setting that chose the ``step`` (``frame_step`` or ``rate``); ``names``: how each setting
+    was given (``--frame-step``, or ``ingest.frame_step``)."""
+    kept = counts["kept"]
+    if sampled < MIN_KEPT:
+        return DataError(path, f"only {sampled} frame(s) sampled: every {step}-th of {decoded} decoded "
+                         f"frames ({names[which]} = {getattr(config, which):g})",
+                         f"lower {names[which]} to sample at least {MIN_KEPT} frames")
+    if counts["blur"] >= counts["static"]:
+        return DataError(path, f"only {kept} of {sampled} sampled frames kept: {counts['blur']} are less "
+                         f"sharp (variance of the Laplacian) than {names['min_sharpness']} = "
+                         f"{config.min_sharpness:g}", f"lower {names['min_sharpness']} (0 turns the blur "
+                         "filter off)")
+    return DataError(path, f"only {kept} of {sampled} sampled frames kept ({counts['static']} static, "
+                     f"{counts['blur']} blurred): the camera hardly moves (median motion below "
+                     f"{names['min_motion']} = {config.min_motion:g} of the diagonal)",
+                     f"record with the camera moving, or lower {names['min_motion']}")
 
 
 def working_camera(camera: RawCamera, max_side: int) -> RawCamera:
@@ -116,14 +170,21 @@ def working_camera(camera: RawCamera, max_side: int) -> RawCamera:
 
 def ingest(inputs: Sequence[str | os.PathLike], out_dir: str | os.PathLike, config: IngestConfig,
            camera_file: str | os.PathLike | None = None, fov: float | None = None,
-           progress: bool = True) -> dict:
-    """Ingest ``inputs`` into ``out_dir`` (module docstring) → the report written to ``ingest.json``."""
+           progress: bool = True, option: str = "--out", owned: bool = False,
+           names: Mapping[str, str] | None = None) -> dict:
+    """Ingest ``inputs`` into ``out_dir`` (module docstring) → the report written to ``ingest.json``.
+    ``option`` names the setting of ``out_dir`` in errors; ``owned``: a DVC stage's output, replaced
+    whatever it holds (:func:`f2depth.io.atomic_dir`). ``names``: how settings given elsewhere are named in
+    errors (e.g. ``{"frame_step": "--frame-step"}``; default ``ingest.<key>``)."""
+    names = {f.name: f"ingest.{f.name}" for f in fields(IngestConfig)} | dict(names or {})
     start = time.perf_counter()
     scenes = collect_inputs(inputs)
     out = Path(out_dir)
+    check_apart([*inputs, camera_file], out, option)
     camera: RawCamera | None = None
     written: RawCamera | None = None
     report: dict[str, dict] = {}
+    notes: list[str] = []  # warnings, one line each (ingest.json's "warnings")
     estimated: list[FocalEstimate] = []
 
     def frames(item: _Input) -> Iterator[np.ndarray]:
@@ -136,7 +197,7 @@ def ingest(inputs: Sequence[str | os.PathLike], out_dir: str | os.PathLike, conf
         estimated.append(estimate_focal((frames(item) for item in scenes), scenes[0].path))
         return estimated[0].camera()
 
-    with atomic_dir(out) as tmp:
+    with atomic_dir(out, "ingest", owned=owned, option=option, previous=earlier_ingest) as tmp:
         for item in scenes:
             source = open_source(item.path)
             video = source.kind == "video"
@@ -149,11 +210,11 @@ def ingest(inputs: Sequence[str | os.PathLike], out_dir: str | os.PathLike, conf
             keep = FrameFilter(config.min_motion, config.min_sharpness)
             folder = tmp / item.scene
             folder.mkdir()
-            read = 0
+            read, candidates = 0, _Candidates(iter(source), step)
             bar = tqdm(total=-(-len(source) // step) or None, desc=f"ingest {item.scene}", unit="frame",
                        disable=not progress, leave=False)
             with bar:
-                for index, frame in _candidates(iter(source), step):
+                for index, frame in candidates:
                     bar.update()
                     read += 1
                     hw = frame.rgb.shape[:2]
@@ -171,20 +232,22 @@ def ingest(inputs: Sequence[str | os.PathLike], out_dir: str | os.PathLike, conf
                         write_rgb(folder / f"r-{seconds:.6f}-{index:06d}.png",
                                   prepare_image(frame.rgb, 0, written.hw, camera=camera))
             if keep.counts["kept"] < MIN_KEPT:
-                raise DataError(item.path, f"only {keep.counts['kept']} of {read} sampled frames kept "
-                                f"({keep.counts['static']} static, {keep.counts['blur']} blurred): the "
-                                "camera hardly moves",
-                                "record with the camera moving, or lower ingest.min_motion (--min-motion)")
+                raise too_few_kept(item.path, keep.counts, read, candidates.decoded, step,
+                                   "rate" if config.rate and fps else "frame_step", config, names)
+            short = decode_shortfall(item.path, candidates.decoded, len(source), "ingested from those")
+            if short is not None:
+                notes.append(short)
             report[item.scene] = {"input": str(item.path), "kind": source.kind, "fps": fps or None,
                                   "rotation_deg": source.rotation_deg if video else 0.0, "step": step,
                                   "sampled": read,
                                   "rotation_applied": source.rotation_applied if video else False,
+                                  "decoded": candidates.decoded, "frames_expected": len(source) or None,
                                   **keep.counts}
         assert written is not None  # every scene kept frames
         write_json(tmp / CAMERA_FILE, written.to_json())
         write_text(tmp / "scenes.txt", "".join(f"{s}\n" for s in report))
         summary = {"scenes": report, "camera": written.to_json(), "input_camera": camera.to_json(),
                    "self_calibration": estimated[0].to_json() if estimated else None,
-                   "settings": asdict(config)}
+                   "settings": asdict(config), "warnings": notes}
         write_json(tmp / "ingest.json", summary)  # no timings: the same inputs give the same bytes
     return {**summary, "seconds": round(time.perf_counter() - start, 2)}

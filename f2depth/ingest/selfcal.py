@@ -17,9 +17,13 @@ minimises ``Σ (σ₁ − σ₂) / σ₂`` over the pairs (the worst ``TRIM`` sh
   refined by a parabola through its neighbours.
 * **Confidence**: the 16–84 % range of the estimate over ``BOOTSTRAP`` resamplings of the pairs, as a
   share of f (``spread``), and the median two-view reprojection error (px at the frames' size) of the F
-  inliers triangulated with that f (``cv2.recoverPose``). An estimate from fewer than ``MIN_PAIRS`` pairs,
-  with a spread above ``MAX_SPREAD``, or at an end of the search range is refused with one line asking for
-  ``--fov`` or a camera file.
+  inliers triangulated with that f (``cv2.recoverPose``). The spread says how much the pairs agree, not how
+  far f is from the truth (distortion and the principal point are not modelled). An estimate from fewer than
+  ``MIN_PAIRS`` pairs, from pairs a homography explains (median share of the inliers above
+  ``MAX_HOMOGRAPHY_SHARE``: a camera turning in place, which gives no F), with a spread above
+  ``MAX_SPREAD``, at an end of the search range, or with a reprojection error above
+  ``MAX_REPROJECTION_PX`` (or none: nothing triangulates) is refused with one line asking for ``--fov`` or
+  a camera file.
 
 Lens distortion is not estimated (a wide lens biases f; measured on the embedded NYU-lens clips:
 docs/ingest.md), which is why a camera file, ``--fov`` and EXIF all come first.
@@ -55,6 +59,12 @@ FOV_RANGE = (20.0, 120.0)
 GRID = 300
 BOOTSTRAP = 100
 MAX_SPREAD = 0.08
+#: A clip whose pairs a homography explains this well (the median share of their F inliers within
+#: RANSAC_PX of one) has no parallax: the camera turned in place (or saw one plane), and F is undefined.
+#: Rendered clips: walking 0.54–0.85, turning in place 0.92–1.0.
+MAX_HOMOGRAPHY_SHARE = 0.9
+#: The most median two-view reprojection error (px at the analysis size) an estimate may have.
+MAX_REPROJECTION_PX = 2.0
 
 
 @dataclass(frozen=True)
@@ -64,6 +74,7 @@ class PairGeometry:
     F: np.ndarray
     a: np.ndarray
     b: np.ndarray
+    homography_share: float = 0.0  # the share of the inliers a homography explains (no parallax: ~1)
 
 
 @dataclass(frozen=True)
@@ -80,8 +91,9 @@ class FocalEstimate:
     def camera(self) -> RawCamera:
         h, w = self.hw
         source = (f"self-calibrated from the video (Mendonça–Cipolla, {self.pairs} pairs): fx {self.fx:.1f} "
-                  f"px (horizontal FOV {self.fov_deg:.1f}°), ±{100 * self.spread / 2:.1f} %, reprojection "
-                  f"{self.reprojection_px:.2f} px")
+                  f"px (horizontal FOV {self.fov_deg:.1f}°), bootstrap 16–84 % range over the pairs "
+                  f"±{100 * self.spread / 2:.1f} % (how much the pairs agree, not the error: lens distortion "
+                  f"and the principal point are not modelled), reprojection {self.reprojection_px:.2f} px")
         return RawCamera(intrinsics(h, w, fx=self.fx), np.zeros(5), (h, w), source)
 
     def to_json(self) -> dict:
@@ -111,7 +123,11 @@ def pair_geometry(ref: np.ndarray, cur: np.ndarray, ref_corners: np.ndarray | No
     if F is None or F.shape != (3, 3) or mask is None:
         return None
     inl = mask.ravel() == 1
-    return PairGeometry(F, a[inl], b[inl]) if inl.sum() >= MIN_INLIERS else None
+    if inl.sum() < MIN_INLIERS:
+        return None
+    H, h_mask = cv2.findHomography(a[inl], b[inl], cv2.USAC_MAGSAC, RANSAC_PX, confidence=0.999)
+    share = 0.0 if H is None or h_mask is None else float(h_mask.mean())
+    return PairGeometry(F, a[inl], b[inl], share)
 
 
 def collect_pairs(scenes: Iterable[Iterable[np.ndarray]]
@@ -201,6 +217,12 @@ def estimate_focal(scenes: Iterable[Iterable[np.ndarray]], where: str | Path,
     if index in (0, GRID - 1):
         raise DataError(Path(where), f"unknown intrinsics and self-calibration failed: the best focal length "
                         f"is at the end of the {FOV_RANGE[0]:g}–{FOV_RANGE[1]:g}° range searched", fix)
+    flat = float(np.median([p.homography_share for p in pairs]))
+    if flat > MAX_HOMOGRAPHY_SHARE:
+        raise DataError(Path(where), f"unknown intrinsics and self-calibration failed: a homography explains "
+                        f"{100 * flat:.0f} % of the tracks of the median pair (at most "
+                        f"{100 * MAX_HOMOGRAPHY_SHARE:.0f} %): the camera turns in place or sees one plane, "
+                        "which gives no focal length", fix + "; or record walking sideways")
     rng = np.random.default_rng(seed)
     boot = [best_focal(grid, Fs[rng.integers(0, len(pairs), len(pairs))], ah)[0] for _ in range(BOOTSTRAP)]
     low, high = np.percentile(boot, [16, 84])
@@ -209,6 +231,12 @@ def estimate_focal(scenes: Iterable[Iterable[np.ndarray]], where: str | Path,
         raise DataError(Path(where), f"unknown intrinsics and self-calibration is unsure: fx {f / scale:.0f} "
                         f"px with a 16–84 % range of {100 * spread:.0f} % over {len(pairs)} pairs (at most "
                         f"{100 * MAX_SPREAD:.0f} %)", fix)
-    reproj = reprojection_error(pairs, f, ah) / scale
+    reproj = reprojection_error(pairs, f, ah)
+    if not reproj <= MAX_REPROJECTION_PX:  # inf: no pair triangulates (no baseline)
+        raise DataError(Path(where), f"unknown intrinsics and self-calibration failed: fx {f / scale:.0f} px "
+                        f"reprojects its pairs' tracks with a median error of {reproj:.3g} px (at most "
+                        f"{MAX_REPROJECTION_PX:g} px at {ah[1]}×{ah[0]}): the frames do not fit one camera "
+                        "moving through a still scene", fix)
+    reproj /= scale
     fov = math.degrees(2 * math.atan(ah[1] / 2 / f))
     return FocalEstimate(f / scale, hw, len(pairs), spread, reproj, fov)

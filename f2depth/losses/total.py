@@ -1,7 +1,8 @@
 """L_depth = L_ph + Σ weight[term]·L_term, and a NaN/inf guard.
 
 The paper's eq. (11), L_ph + λ1·L_sm + λ2·L_spp + L_rigid + λ3·L_feature, with each λ under the name of its
-term (params.yaml ``loss_weights``: smooth, planar, rigid, feature); terms and weights are matched by name.
+term (params.yaml ``lambda1``, ``lambda2``, ``lambda_rigid``, ``lambda3``: f2depth.train.step.WEIGHT_KEYS);
+terms and weights are matched by name.
 """
 
 from __future__ import annotations
@@ -42,16 +43,17 @@ def total_loss(
     """L_ph + Σ weights[name]·terms[name] → (loss, {term: float, ..., "total": float}).
 
     ``terms`` holds scalar tensors by name, the photometric term ``"ph"`` (weight 1) required; every other
-    term needs a weight in ``weights`` (term → weight, params.yaml ``loss_weights``). A term whose weight is 0
-    is logged but left out of the sum; a weighted term may be left out of ``terms`` only if its weight is 0
-    (e.g. no flow losses for the P²Net baseline). Terms are summed in the order of ``terms``. Checks every
-    term with ``check_finite``.
+    term needs a weight in ``weights`` (term → weight, f2depth.train.settings.loss_weights). A term whose
+    weight is 0 is logged but left out of the sum; a weighted term may be left out of ``terms`` only if its
+    weight is 0 (e.g. no flow losses for the P²Net baseline). Terms are summed in the order of ``terms``.
+    Checks every term with ``check_finite``.
     """
     if PHOTOMETRIC not in terms:
         raise KeyError(f"the photometric term {PHOTOMETRIC!r} is required")
     unweighted = [name for name in terms if name != PHOTOMETRIC and name not in weights]
     if unweighted:
-        raise KeyError(f"loss terms {unweighted} have no weight; give each one (params.yaml loss_weights)")
+        raise KeyError(f"loss terms {unweighted} have no weight; "
+                       "give each one (f2depth.train.step.WEIGHT_KEYS)")
     absent = [name for name, w in weights.items() if name not in terms and w != 0.0]
     if absent:
         raise KeyError(f"loss terms {absent} have non-zero weights but were not computed")

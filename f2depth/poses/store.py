@@ -47,7 +47,7 @@ def write_poses(out_dir: str | os.PathLike, scenes: dict[str, ScenePoses],
     """Write the folder in a temporary sibling and swap it into place (the old one stays until then). No
     timing goes in (metrics/poses.json has it), so the same inputs give the same bytes and DVC does not
     re-run the stages downstream after an identical re-run."""
-    with atomic_dir(out_dir) as tmp:
+    with atomic_dir(out_dir, "poses", owned=True) as tmp:  # DVC's output (data.poses)
         for name, s in scenes.items():
             write_text(tmp / "cameras" / f"{name}.csv", _cameras_csv(s))
         write_json(tmp / "priors.json", {

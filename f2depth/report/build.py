@@ -21,7 +21,8 @@ def _same_images(a: VariantResults, b: VariantResults, prefix: str) -> bool:
 
 
 def write_figures(results: Mapping[str, VariantResults], depth_histories: Mapping[str, Mapping],
-                  flow_histories: Mapping[str, Mapping], out_dir: str | os.PathLike) -> list[Path]:
+                  depth_validations: Mapping[str, Mapping], flow_histories: Mapping[str, Mapping],
+                  out_dir: str | os.PathLike) -> list[Path]:
     """Qualitative grids and AbsRel error maps (RGB, baseline, full, GT; the first seed, no PP) for every
     test set with figures (``Protocol.figure``: NYU, 7-Scenes), and the training curves. Returns the
     files written."""
@@ -44,7 +45,7 @@ def write_figures(results: Mapping[str, VariantResults], depth_histories: Mappin
         figures.error_grid(errors, rgb, preds, gt, labels, f"{title}: per-pixel AbsRel")
         written += [grid, errors]
     curves = out / "training_curves.png"
-    figures.training_curves(curves, depth_histories, flow_histories)
+    figures.training_curves(curves, depth_histories, depth_validations, flow_histories)
     written.append(curves)
     return written
 
@@ -81,14 +82,15 @@ def readme(tables: Sequence[Table], table_dir: str, figure_files: Sequence[Path]
 
 
 def write_report(tables: Sequence[Table], results: Mapping[str, VariantResults],
-                 depth_histories: Mapping[str, Mapping], flow_histories: Mapping[str, Mapping],
-                 root: str | os.PathLike, table_dir: str = "tables",
+                 depth_histories: Mapping[str, Mapping], depth_validations: Mapping[str, Mapping],
+                 flow_histories: Mapping[str, Mapping], root: str | os.PathLike, table_dir: str = "tables",
                  figure_dir: str = "figures/depth") -> dict:
     """Tables into ``root/table_dir``, figures into ``root/figure_dir``, ``root/README.md``; returns
     ``{"tables": [...], "figures": [...], "readme": path}``."""
     root = Path(root)
     table_files = [p for t in tables for p in t.write(root / table_dir)]
-    figure_files = write_figures(results, depth_histories, flow_histories, root / figure_dir)
+    figure_files = write_figures(results, depth_histories, depth_validations, flow_histories,
+                                 root / figure_dir)
     index = root / "README.md"
     write_text(index, readme(tables, table_dir, figure_files, root, results))
     return {"tables": table_files, "figures": figure_files, "readme": index}

@@ -116,15 +116,17 @@ def error_grid(path: str | os.PathLike, rgb: np.ndarray, preds: Sequence[tuple[s
 
 
 def training_curves(path: str | os.PathLike, depth: Mapping[str, Mapping[str, Sequence[float]]],
+                    validation: Mapping[str, Mapping[str, Sequence[float]]],
                     flow: Mapping[str, Mapping[str, Sequence[float]]]) -> None:
     """Depth training (total loss, validation δ1 and AbsRel per epoch, one line per variant) and flow
     fine-tuning (held-out EPE per epoch, one line per loss). Inputs: ``{name: {column: values}}`` as
-    read from the history.csv files (``epoch`` column required); empty mappings leave a panel blank."""
+    read from the history files (``epoch`` column required): ``depth`` and ``flow`` each run's
+    history.csv, ``validation`` each depth run's validation.csv; empty mappings leave a panel blank."""
     fig = Figure(figsize=(11, 7.5), layout="constrained")
     axes = fig.subplots(2, 2).ravel()
     panels = [(axes[0], depth, "total", "training loss (L_depth)"),
-              (axes[1], depth, "val_a1", "validation δ<1.25 ↑"),
-              (axes[2], depth, "val_abs_rel", "validation AbsRel ↓")]
+              (axes[1], validation, "val_a1", "validation δ<1.25 ↑"),
+              (axes[2], validation, "val_abs_rel", "validation AbsRel ↓")]
     for ax, source, column, label in panels:
         for name, h in source.items():
             if column in h and "epoch" in h:
@@ -147,7 +149,7 @@ def training_curves(path: str | os.PathLike, depth: Mapping[str, Mapping[str, Se
         if a.get_legend_handles_labels()[0]:
             a.legend(fontsize=7)
         else:
-            a.text(0.5, 0.5, "no history.csv found", ha="center", va="center", transform=a.transAxes)
+            a.text(0.5, 0.5, "no history file found", ha="center", va="center", transform=a.transAxes)
         a.xaxis.set_major_locator(MaxNLocator(integer=True))
         a.grid(alpha=0.3)
     fig.suptitle("Training curves: depth variants (train_depth) and flow fine-tuning (flow_finetune)")

@@ -94,7 +94,7 @@ def loss_marks(r: VariantResults) -> tuple[bool | None, bool | None]:
 
 def table5(results: Mapping[str, VariantResults]) -> Table:
     """Losses on/off (tab:tab5): baseline, + L_rigid (no_feature), + L_feature (full), × PP. The ✓/×
-    marks are the weights each run was trained with (so ``dvc exp run -S loss_weights.feature=0`` shows
+    marks are the weights each run was trained with (so ``dvc exp run -S lambda3=0`` shows
     L_feature × for ``full``), not the variants' intended roles."""
     rows: list[dict[str, Any]] = []
     paper = published.table5()

@@ -5,7 +5,8 @@
 - ``reports/eval/<variant>/details.json``: per seed, per-scene rows of 7-Scenes and Campus, counts;
 - ``reports/eval/<variant>/figures.npz``: the first seed's predictions on a few test images;
 - ``metrics/flow_finetune/<loss>.json``: EPE of the pretrained and fine-tuned flow on held-out pairs;
-- ``metrics/train_depth/<variant>/history.csv`` and ``metrics/flow_finetune/<loss>/history.csv``.
+- ``metrics/train_depth/<variant>/{history,validation}.csv`` (every epoch; the measured epochs) and
+  ``metrics/flow_finetune/<loss>/history.csv``.
 """
 
 from __future__ import annotations
@@ -129,31 +130,57 @@ def flow_epe(flow_model: str | None, flow_metrics: dict[str, dict[str, Any]], pr
     return None
 
 
-def headline(results: dict[str, VariantResults], train_metrics: dict[str, dict[str, Any]]) -> dict[str, Any]:
-    """One flat record per variant for ``dvc exp show`` (the ``tables`` stage's metrics file): NYU δ1 and
-    AbsRel of the trained network (mean over seeds) with their sample standard deviation over the seeds
-    (``*_std``, None for one seed) and the seed count ``n_seeds``, and beside them the floors from its
-    training run — the untrained network and a constant depth on the same test images (``train_metrics``:
-    variant → ``metrics/train_depth/<variant>.json``)."""
-    out: dict[str, Any] = {}
+#: The test sets of the headline, by their evaluate group and the name their columns carry.
+HEADLINE_SETS = {"nyu": "nyu", "sevenscenes": "7scenes", "campus": "campus"}
+
+
+def headline(results: dict[str, VariantResults], train_metrics: dict[str, dict[str, Any]],
+             teacher: dict[str, Any]) -> dict[str, Any]:
+    """The declared DVC metrics (``metrics/tables.json``): the ablation table ``dvc exp show`` compares.
+
+    One record per variant, under its name (short column names for ``dvc exp show``: ``full.nyu_a1``): δ1 and
+    AbsRel on the NYU test split, 7-Scenes and Campus (mean over seeds) and ``n_seeds``; ``floors``: the
+    untrained network and a constant depth on the NYU test images (from the first variant's training run,
+    ``train_metrics``: variant → ``metrics/train_depth/<variant>.json``; the untrained network is the same for
+    every variant of a seed); ``teacher``: the flow networks' EPE and swap consistency
+    (:func:`teacher_summary`). Everything else (histories, timings, diagnostics) stays in the stages' own
+    files, which are not DVC metrics."""
+    variants: dict[str, Any] = {}
     for name, r in results.items():
-        nyu = r.metrics.get("nyu", {})
-        train = train_metrics.get(name, {})
-        out[name] = {
-            "nyu_a1": nyu.get("a1"), "nyu_abs_rel": nyu.get("abs_rel"),
-            "nyu_a1_std": _sample_std(r.values("nyu", "a1")),
-            "nyu_abs_rel_std": _sample_std(r.values("nyu", "abs_rel")), "n_seeds": r.n_seeds,
-            "untrained_a1": train.get("val_untrained", {}).get("a1"),
-            "untrained_abs_rel": train.get("val_untrained", {}).get("abs_rel"),
-            "constant_depth_a1": train.get("val_constant_depth", {}).get("a1"),
-            "constant_depth_abs_rel": train.get("val_constant_depth", {}).get("abs_rel"),
-        }  # fmt: skip
+        row: dict[str, Any] = {}
+        for group, label in HEADLINE_SETS.items():
+            scores = r.metrics.get(group) or {}
+            row[f"{label}_a1"], row[f"{label}_abs_rel"] = scores.get("a1"), scores.get("abs_rel")
+        variants[name] = {**row, "n_seeds": r.n_seeds}
+    first = train_metrics.get(next(iter(results), ""), {})
+    floors = {floor: {"nyu_a1": (first.get(f"val_{floor}") or {}).get("a1"),
+                      "nyu_abs_rel": (first.get(f"val_{floor}") or {}).get("abs_rel")}
+              for floor in ("untrained", "constant_depth")}
+    clash = set(variants) & {"floors", "teacher"}
+    if clash:
+        raise ValueError(f"variants {sorted(clash)}: the headline's own sections have these names; "
+                         "rename the variants")
+    return {**variants, "floors": floors, "teacher": teacher}
+
+
+def teacher_summary(pretrain: dict[str, Any], finetune: dict[str, dict[str, Any]]) -> dict[str, Any]:
+    """The flow teachers' EPE (px, all pixels) and swap consistency: the pretrained one on the prepared
+    training pairs with ground truth (``metrics/flow_pretrain.json`` ``prepared``) beside zero flow, and
+    every teacher on the held-out scene's pairs (``finetune``: loss → ``metrics/flow_finetune/<loss>.json``)
+    beside zero flow. None where a run did not score it."""
+    prepared = pretrain.get("prepared") or {}
+    out: dict[str, Any] = {
+        "prepared_epe": (prepared.get("model") or {}).get("epe_all"),
+        "prepared_swap": (prepared.get("model") or {}).get("swap_consistency"),
+        "prepared_zero_flow_epe": (prepared.get("zero_flow") or {}).get("epe_all"),
+    }
+    first = next(iter(finetune.values()), {})
+    heldout = {"pretrained": (first.get("pretrained") or {}).get("test") or {}}
+    heldout |= {loss: (m.get("finetuned") or {}).get("test") or {} for loss, m in finetune.items()}
+    out["heldout_epe"] = {name: test.get("epe_all") for name, test in heldout.items()}
+    out["heldout_swap"] = {name: test.get("swap_consistency") for name, test in heldout.items()}
+    out["heldout_zero_flow_epe"] = ((first.get("zero_flow") or {}).get("test") or {}).get("epe_all")
     return out
-
-
-def _sample_std(values: list[float] | None) -> float | None:
-    """Sample standard deviation (ddof 1, as the tables' ``mean ± std``); None for fewer than two values."""
-    return float(np.std(values, ddof=1)) if values is not None and len(values) > 1 else None
 
 
 def read_history(path: str | os.PathLike) -> dict[str, list[float]]:

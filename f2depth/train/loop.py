@@ -35,10 +35,14 @@ from f2depth.train.schedule import LRSchedule
 from f2depth.train.step import TERMS, StepConfig, batch_to, train_step
 from f2depth.train.teacher import FlowTeacher
 
-#: Columns of history.csv (DVC plots, x = epoch), every loss term by name among them; empty cells for values
-#: a row does not have (e.g. the flow terms of the P²Net baseline).
-HISTORY_COLUMNS = ["epoch", PHOTOMETRIC, *TERMS, "total", "steps", "skipped_steps", "lr", "val_abs_rel",
-                   "val_a1", *HELDOUT_KEYS, *DIAGNOSTIC_KEYS, "seconds", "val_seconds"]
+#: Columns of history.csv (DVC plots, x = epoch): what every training epoch measures, every loss term by
+#: name among them (a term the variant is without, e.g. the flow terms of the P²Net baseline, stays empty).
+HISTORY_COLUMNS = ["epoch", PHOTOMETRIC, *TERMS, "total", "steps", "skipped_steps", "lr", "seconds"]
+#: Columns of validation.csv: what the measured epochs add (epoch 0, every ``val_every``-th, the last): NYU
+#: validation, the held-out tuples' scores and the training-frame diagnostics, whichever the run has.
+VALIDATION_COLUMNS = ["epoch", "val_abs_rel", "val_a1", *HELDOUT_KEYS, *DIAGNOSTIC_KEYS, "val_seconds"]
+#: The history files of a run (f2depth.epochs.write_history: each holds the rows that measured its columns).
+HISTORY_FILES = {"history.csv": HISTORY_COLUMNS, "validation.csv": VALIDATION_COLUMNS}
 
 
 @dataclass(frozen=True)

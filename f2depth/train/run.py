@@ -34,10 +34,11 @@ from f2depth.superpixels import scaled_min_area
 from f2depth.train.data import DataConfig, TupleDataset, batch_problem
 from f2depth.train.diagnostics import DIAGNOSTIC_KEYS, TrainTruth, constant_depth_metrics, diagnose
 from f2depth.train.distributed import DistContext, barrier
+from f2depth.train.exact_teacher import ExactTeacher
 from f2depth.train.heldout import HELDOUT_KEYS, HeldOutValidator
 from f2depth.train.loop import FitResult, LoopConfig, fit, seed_everything
 from f2depth.train.settings import TrainSettings
-from f2depth.train.step import StepConfig
+from f2depth.train.step import WEIGHT_KEYS, StepConfig
 from f2depth.train.teacher import FlowTeacher
 from f2depth.train.validate import make_validator
 
@@ -88,6 +89,13 @@ def no_tracking(seed: int) -> AbstractContextManager[tracking.StageRun]:
     return contextlib.nullcontext(tracking.StageRun())
 
 
+def run_params(s: TrainSettings, seeds: list[int]) -> dict[str, Any]:
+    """What the MLflow runs of ``seeds`` of this variant log that they trained with: the variant's loss
+    weights under their params.yaml names (``WEIGHT_KEYS``), its flow model, ... (f2depth.tracking)."""
+    weights = {WEIGHT_KEYS[term]: w for term, w in s.weights.items()}
+    return tracking.trained_params(s.variant, weights, s.flow_model, s.epochs, seeds, s.without)
+
+
 @dataclass(frozen=True)
 class VariantRun:
     """What :func:`train_variant` returns: the metrics document and the first seed's per-epoch rows."""
@@ -125,7 +133,9 @@ def train_variant(
                            priors=priors)
     if problem := batch_problem(len(dataset), s.batch_size, ctx.world_size):  # before any model is built
         raise DataError(Path(s.prepared) / "tuples.csv", *problem)
-    teacher = FlowTeacher.load(s.flow_model, ctx.device, s.teacher_memo_mb) if s.flow_model else None
+    teacher = (None if not s.flow_model
+               else ExactTeacher.from_prepared(s.flow_model, prepared, ctx.device, s.teacher_memo_mb)
+               if s.teacher == "exact" else FlowTeacher.load(s.flow_model, ctx.device, s.teacher_memo_mb))
     if not s.nyu_labeled and not prepared.val_tuples:
         raise DataError(Path(s.prepared) / VAL_TUPLES, "no validation set: data.nyu_labeled is null and the "
                         "prepared set holds no held-out tuples", "set prepare.val_share (e.g. 0.2) and re-run"
@@ -163,8 +173,6 @@ def train_variant(
             model.set_initial_depth(s.init_depth)
         with open_run(seed) if ctx.is_main else no_tracking(seed) as run:
             run.set_tags({"seed": seed})
-            run.log_params({"effective": {"weights": s.weights, "without": list(s.without),
-                                          "flow_model": s.flow_model, "seed": seed}})
             result = fit(
                 model, dataset, teacher, step_config,
                 LoopConfig(s.epochs, s.batch_size, schedule, seed=seed, workers=s.workers,
@@ -179,7 +187,8 @@ def train_variant(
                 if result.resumed_from:
                     log.info("seed %d: resumed after epoch %d (%s)", seed, result.resumed_from, state_file)
                 save_checkpoint(build_dir / f"seed{seed}.pt", model, params=s.as_dict(),
-                                variant=s.variant, seed=seed, history=result.history)
+                                variant=s.variant, seed=seed, history=result.history,
+                                weight_keys=dict(WEIGHT_KEYS))  # the params key of each term's weight
                 run.log_summary(summary)  # this seed's entry of the metrics file's per_seed
         per_seed.append(summary)
         if seed == s.seeds[0]:
@@ -191,7 +200,7 @@ def train_variant(
         except OSError:
             shutil.copyfile(build_dir / f"seed{s.seeds[0]}.pt", build_dir / "model.pt")
     metrics = {
-        "variant": s.variant, "flow_model": s.flow_model, "weights": dict(s.weights),
+        "variant": s.variant, "flow_model": s.flow_model, "teacher": s.teacher, "weights": dict(s.weights),
         "without": list(s.without), "epochs": s.epochs, "batch_size": s.batch_size,
         "lr_phases": list(schedule.phases), "train_tuples": len(dataset),
         "steps_per_epoch": len(dataset) // s.batch_size, "seeds": list(s.seeds), "main_seed": s.seeds[0],

@@ -2,10 +2,11 @@
 
 A variant (params ``variants.<name>``, docs/method.md §1) says what it is: ``flow``, the frozen flow network
 that supervises depth (a model file; null for the P²Net baseline, which has no flow losses), and
-``without``, the loss terms it switches off (names of ``loss_weights``; a variant without a flow network must
-switch off the flow terms, ``f2depth.train.step.FLOW_TERMS``). Its loss weights are ``loss_weights`` with
-those terms at 0 (the key is not ``off``: YAML 1.1 readers such as PyYAML take ``off`` for false). What
-DVC tracks for each variant (the flow model file) is written in dvc.yaml, not here.
+``without``, the loss terms it switches off (``f2depth.train.step.TERMS``: smooth, planar, rigid, feature; a
+variant without a flow network must switch off the flow terms, ``FLOW_TERMS``). Its loss weights are the
+top-level ``lambda1``, ``lambda2``, ``lambda_rigid``, ``lambda3`` (``WEIGHT_KEYS``) with those terms at 0 (the
+key is not ``off``: YAML 1.1 readers such as PyYAML take ``off`` for false). What DVC tracks for each
+variant (the flow model file) is written in dvc.yaml, not here.
 """
 
 from __future__ import annotations
@@ -20,21 +21,20 @@ from f2depth import params as P
 from f2depth.depth import DepthModelConfig
 from f2depth.depth.decoder import sigmoid_input_for_depth
 from f2depth.train.schedule import LRSchedule
-from f2depth.train.step import FLOW_TERMS, TERMS
+from f2depth.train.step import FLOW_TERMS, TERMS, WEIGHT_KEYS
 
 #: train_depth.pose_prior: none = the paper's PoseCNN; geometric = PoseCNN refines a prior from multi-view
 #: geometry (the ``poses`` stage, f2depth.poses), a residual pose as MonoIndoor's (f2depth.depth.model)
 POSE_PRIORS = ("none", "geometric")
-#: ``loss_weights`` keys that are no term of L_depth: flow fine-tuning's smoothness (stages/flow_finetune.py)
-OTHER_WEIGHTS = ("flow_smooth",)
-
-
+#: train_depth.teacher: network = the frozen flow network (the paper); exact = its flow replaced by the
+#: synthetic world's exact rigid flow, a diagnosis of the synthetic default (f2depth.train.exact_teacher)
+TEACHERS = ("network", "exact")
 @dataclass(frozen=True)
 class Variant:
     """One ``variants.<name>`` entry of params.yaml."""
 
     flow: str | None  # the frozen flow network (models/flow_*.pt); null: the P²Net baseline
-    without: tuple[str, ...]  # loss terms (keys of loss_weights) this variant trains with weight 0
+    without: tuple[str, ...]  # loss terms (f2depth.train.step.TERMS) this variant trains with weight 0
 
 
 @dataclass(frozen=True)
@@ -60,6 +60,7 @@ class TrainSettings:
     diagnostic_tuples: int = field(metadata={"min": 0})
     sync_bn: bool
     teacher_memo_mb: float = field(metadata={"min": 0})  # f2depth.train.teacher: the frozen network's memo
+    teacher: str  # network (the paper) | exact (diagnosis: the synthetic world's rigid flow)
     resume_dir: str
     # ---- resolved for the variant
     variant: str
@@ -78,6 +79,8 @@ class TrainSettings:
     def __post_init__(self) -> None:
         if self.pose_prior not in POSE_PRIORS:
             raise ValueError(f"pose_prior must be one of {', '.join(POSE_PRIORS)}, got {self.pose_prior!r}")
+        if self.teacher not in TEACHERS:
+            raise ValueError(f"teacher must be one of {', '.join(TEACHERS)}, got {self.teacher!r}")
         _ = self.schedule  # LRSchedule's rules check lr and lr_epochs (its errors name them)
         if not self.seeds or len(set(self.seeds)) != len(self.seeds):
             raise ValueError(f"seeds must be a non-empty list of distinct integers, got {list(self.seeds)}")
@@ -122,13 +125,10 @@ def variant(params: dict[str, Any], name: str) -> Variant:
 
 
 def loss_weights(params: dict[str, Any], without: Iterable[str] = ()) -> dict[str, float]:
-    """The weight of every term of L_depth (``f2depth.train.step.TERMS``, in that order) from params.yaml
-    ``loss_weights``, 0 for the terms in ``without``. Each must be a number >= 0; a key of ``loss_weights``
-    that is neither a term nor one of :data:`OTHER_WEIGHTS` is an error (a typo in ``dvc exp run -S`` would
-    otherwise train with the old weight)."""
-    path = params.get("_file", P.DEFAULT_PARAMS)
-    P.reject_unknown(path, "loss_weights", P.value(params, "loss_weights", dict), (*TERMS, *OTHER_WEIGHTS))
-    weights = {term: P.value(params, f"loss_weights.{term}", float, min=0) for term in TERMS}
+    """The weight of every term of L_depth (``f2depth.train.step.TERMS``, in that order) from params.yaml's
+    top-level ``lambda1``, ``lambda2``, ``lambda_rigid``, ``lambda3`` (``WEIGHT_KEYS``), 0 for the terms in
+    ``without``. Each must be a number >= 0 (checked also for a term that is off)."""
+    weights = {term: P.value(params, WEIGHT_KEYS[term], float, min=0) for term in TERMS}
     off = set(without)
     return {term: 0.0 if term in off else w for term, w in weights.items()}
 
@@ -154,6 +154,11 @@ def settings_from_params(params: dict[str, Any], name: str) -> TrainSettings:
         "device": P.value(params, "device", P.Device),
     }  # fmt: skip
     settings = P.section(params, "train_depth", TrainSettings, **resolved)
+    if settings.teacher == "exact" and not (P.value(params, "allow_random_init", bool)
+                                            and P.get(params, "data_source", None) == "synthetic"):
+        raise P.ParamsError(f"{params.get('_file', P.DEFAULT_PARAMS)}: train_depth.teacher: exact needs the "
+                            "synthetic default's ground truth (data_source: synthetic, allow_random_init: "
+                            "true); it is a diagnosis, not the paper's method: set it to network")
     # Before any work: the paper's pretrained starts (allow_random_init: false) must exist.
     starts = P.pretrained_starts(params, ("train_depth.imagenet_weights",)
                                  + (("flow_pretrain.checkpoint",) if v.flow is not None else ()))

@@ -7,8 +7,8 @@ With pose priors in the batch (``train_depth.pose_prior: geometric``) PoseCNN re
 ``[I−1, I0]`` is ``0_T_−1 = (prior_prev)⁻¹``, that of ``[I0, I+1]`` is ``prior_next``; a sample whose flag is
 False gets PoseCNN's own pose (``DepthModel.predict_pose`` chooses per sample with ``torch.where``).
 
-Terms (the paper §3.2–3.4), all on the un-augmented frames, named as their weights in params.yaml
-``loss_weights`` (:data:`TERMS`; ph has weight 1):
+Terms (the paper §3.2–3.4), all on the un-augmented frames (:data:`TERMS`; ph has weight 1, each other's
+weight is the params.yaml key in :data:`WEIGHT_KEYS`):
   ph       P²Net's patch photometric loss, minimum over the two sources;
   smooth   L_sm, edge-aware smoothness of the mean-normalised sigmoid disparity;
   planar   L_spp, planar loss over superpixels larger than P²Net's 1000 px at 288×384, scaled by image area;
@@ -46,10 +46,14 @@ from f2depth.losses import (
 from f2depth.precision import autocast, backward_and_step, full_precision
 from f2depth.train.teacher import FlowTeacher, TeacherOutput
 
-#: The weighted terms of L_depth (history.csv's columns after ph, in this order); each one's weight is
-#: params.yaml ``loss_weights.<name>``. Adding a term: compute it in :func:`loss_terms`, name it
-#: here (and in FLOW_TERMS when it needs the flow network) and give it its key in ``loss_weights``.
+#: The weighted terms of L_depth (history.csv's columns after ph, in this order). Adding a term: compute it
+#: in :func:`loss_terms`, name it here (and in FLOW_TERMS when it needs the flow network) and give its
+#: weight a top-level key of params.yaml in WEIGHT_KEYS.
 TERMS = ("smooth", "planar", "rigid", "feature")
+#: The top-level params.yaml key of each term's weight: the paper's names of eq. (11),
+#: L_depth = L_ph + λ1·L_sm + λ2·L_spp + L_rigid + λ3·L_feature; L_rigid has no λ there (weight 1),
+#: ``lambda_rigid`` weighs it here.
+WEIGHT_KEYS = {"smooth": "lambda1", "planar": "lambda2", "rigid": "lambda_rigid", "feature": "lambda3"}
 #: The terms that need the frozen flow network: a variant without one (``flow: null``) must switch them off.
 FLOW_TERMS = ("rigid", "feature")
 
