@@ -39,7 +39,11 @@ def outside_repository(path, root: Path = ROOT, allowed: tuple[Path, ...] = ()) 
     absolute = Path(os.path.abspath(os.fsdecode(path)))
     if not absolute.is_relative_to(root.parent) or absolute.is_relative_to(root):
         return False
-    if any(absolute.is_relative_to(folder) for folder in allowed):
+    # A folder the machine needs that lies beside the clone is allowed; one that holds the clone's parent (the
+    # temp folder when the clone is in a folder of its own below it, as in CI) is not: the parent's entries
+    # are what this guard is for. A clone right in the temp folder cannot tell them apart: allowed.
+    if any(absolute.is_relative_to(folder)
+           and (folder == root.parent or not root.parent.is_relative_to(folder)) for folder in allowed):
         return False
     parts = absolute.relative_to(root.parent).parts
     return not parts or not parts[0].startswith(".")

@@ -31,7 +31,10 @@ def test_guard_refuses_a_sibling_folder_and_allows_the_clone_and_temp():
     assert not outside_repository("/home/user/.cache/matplotlib", root)
     assert not outside_repository("/usr/lib/python3/os.py", root)
     assert not outside_repository(3, root)
-    assert not outside_repository(temp / "x", Path(temp) / "f2depth", (temp,))
+    assert not outside_repository(temp / "x", temp / "f2depth", (temp,))  # a clone right in the temp folder
+    assert outside_repository(temp / "ci" / "shared" / "x", temp / "ci" / "f2depth", (temp,))  # CI's clone
+    assert not outside_repository(temp / "pytest-of-x" / "y", temp / "ci" / "f2depth", (temp,))
+    assert not outside_repository("/home/user/venv/lib/os.py", root, (Path("/home/user/venv"),))
     assert not outside_repository("/sibling/x", Path("/f2depth"))
 
 
