@@ -30,7 +30,7 @@ from f2depth.ingest.camera_files import (
 )
 from f2depth.ingest.run import IngestConfig, collect_inputs, ingest
 from f2depth.ingest.select import FrameFilter, median_motion
-from f2depth.ingest.selfcal import best_focal, focal_costs
+from f2depth.ingest.selfcal import ERROR_BAR, ERROR_BAR_RULE, best_focal, focal_costs
 from f2depth.io import OUTPUT_MARKER
 from f2depth.poses.estimate import PosesConfig, estimate_scene
 
@@ -237,7 +237,14 @@ def test_without_a_camera_the_video_calibrates_itself(clip, tmp_path, capsys):
     assert est["pairs"] >= 12 and est["spread"] < 0.08 and est["reprojection_px"] < 1.0
     cam = json.loads((tmp_path / "v" / "camera.json").read_text())
     assert cam["K"][0][0] == pytest.approx(est["fx"]) and cam["K"][0][2] == 159.5 and not any(cam["dist"])
-    assert "self-calibrated from the video" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "self-calibrated from the video" in out
+    # issue 53: the error bar printed and recorded is the measured one (the bootstrap range held the truth
+    # on few rendered clips), and docs/ingest.md states the same number
+    assert est["error_bar"] == ERROR_BAR and est["error_bar_rule"] == ERROR_BAR_RULE
+    bar = f"typical error ±{100 * ERROR_BAR:.0f} %"
+    assert bar in out and bar in cam["intrinsics_source"]
+    assert f"±{100 * ERROR_BAR:.0f} %" in (REPO / "docs" / "ingest.md").read_text()
 
 
 def test_cli_ingest_with_fov_and_a_flag_override(clip, tmp_path, capsys):
