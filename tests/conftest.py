@@ -10,6 +10,8 @@ import sys
 import tempfile
 from pathlib import Path
 
+import pytest
+
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 
@@ -18,6 +20,22 @@ def pytest_collection_modifyitems(config, items):
     to its two workers two at a time (``--maxschedchunk 2``), so the workers start on the long ones together
     and share them, instead of one of them starting a five-minute test when the other is nearly done."""
     items.sort(key=lambda item: not (item.get_closest_marker("e2e") or item.get_closest_marker("slow")))
+
+
+@pytest.fixture
+def restore_threads():
+    """Put torch's and OpenCV's thread counts and f2depth.threads' free-core watch back after a test that
+    sets them."""
+    import cv2
+    import torch
+
+    from f2depth import threads
+
+    before_torch, before_cv2, before_free = torch.get_num_threads(), cv2.getNumThreads(), threads._free
+    yield
+    threads._free = before_free
+    torch.set_num_threads(before_torch)
+    cv2.setNumThreads(before_cv2)
 
 
 # ---- no test reads outside the repository (a user's clone has nothing beside it) -----------------------

@@ -6,8 +6,6 @@ from __future__ import annotations
 
 import itertools
 
-import cv2
-import pytest
 import torch
 import train_fakes
 import yaml
@@ -15,15 +13,6 @@ from test_train_stage import load_stage
 
 from f2depth import threads
 from f2depth.depth import DepthModel, DepthModelConfig
-
-
-@pytest.fixture
-def restore_threads():
-    before_torch, before_cv2, before_free = torch.get_num_threads(), cv2.getNumThreads(), threads._free
-    yield
-    threads._free = before_free
-    torch.set_num_threads(before_torch)
-    cv2.setNumThreads(before_cv2)
 
 
 def test_a_forward_pass_gives_the_same_bits_at_any_thread_count(restore_threads):

@@ -20,15 +20,6 @@ ROOT = Path(__file__).resolve().parents[1]
 AFFINITY = len(os.sched_getaffinity(0))
 
 
-@pytest.fixture
-def restore_threads():
-    before_torch, before_cv2, before_free = torch.get_num_threads(), cv2.getNumThreads(), threads._free
-    yield
-    threads._free = before_free
-    torch.set_num_threads(before_torch)
-    cv2.setNumThreads(before_cv2)
-
-
 def cgroup(tmp_path: Path, v2: str | None = None, v1: tuple[str, str] | None = None) -> Path:
     root = tmp_path / "cgroup"
     root.mkdir(parents=True)
