@@ -70,3 +70,39 @@ def test_train_depth_gives_the_same_weights_beside_a_busy_process(tmp_path, monk
 
     assert list(quiet) == list(busy) and len(quiet) > 100
     assert all(torch.equal(quiet[k], busy[k]) for k in quiet)
+
+
+def _seed_weights(root, params_path, monkeypatch, seed: int) -> tuple[dict[str, torch.Tensor], dict]:
+    stage = load_stage(monkeypatch)
+    stage.main(["train_depth.py", "--variant", "full", "--params", str(params_path),
+                "--models", str(root / "models"), "--metrics", str(root / "metrics"), "--no-resume"])
+    state = torch.load(root / "models" / "depth_full" / f"seed{seed}.pt", map_location="cpu",
+                       weights_only=True)
+    metrics = yaml.safe_load((root / "metrics" / "full.json").read_text())
+    return state.get("state_dict", state), metrics
+
+
+def test_seeds_side_by_side_give_each_seed_the_weights_it_gets_alone(tmp_path, monkeypatch, restore_threads):
+    """train_depth.seed_threads: 1 trains seeds 0 and 1 in two processes at once (f2depth.train.seed_pool);
+    seed 1's weights are bit-identical to seed 1 trained alone in the stage's own process at one thread, so
+    neither the other seed's process, nor how the OS shares the cores, nor the process boundary changes a
+    result. The metrics file records both seeds, the stage process's metrics come from the processes."""
+    prep = train_fakes.write_prepared(tmp_path / "prepared", hw=(64, 64), scenes=1, frames=6)
+    mat, splits = train_fakes.write_nyu_test(tmp_path, n=2)
+    flow = train_fakes.write_flow_model(tmp_path / "flow.pt")
+    path = train_fakes.write_params(tmp_path, prep, mat, splits, flow, epochs=2, seeds=[0, 1], val_every=2,
+                                    seed_threads=1)
+    side_by_side, metrics = _seed_weights(tmp_path / "pool", path, monkeypatch, seed=1)
+    assert metrics["seed_threads"] == 1 and [s["seed"] for s in metrics["per_seed"]] == [0, 1]
+    assert metrics["per_seed"][0]["val_trained"] != metrics["per_seed"][1]["val_trained"]  # two trainings
+
+    params = yaml.safe_load(path.read_text())
+    params["threads"], params["train_depth"]["seeds"], params["train_depth"]["seed_threads"] = 1, [1], None
+    path.write_text(yaml.safe_dump(params))
+    alone, metrics_alone = _seed_weights(tmp_path / "alone", path, monkeypatch, seed=1)
+    assert metrics_alone["seed_threads"] is None
+    assert list(alone) == list(side_by_side) and len(alone) > 100
+    assert all(torch.equal(alone[k], side_by_side[k]) for k in alone)
+    assert metrics_alone["per_seed"][0]["val_trained"] == metrics["per_seed"][1]["val_trained"]
+    assert metrics["val_constant_depth"] == metrics_alone["val_constant_depth"]  # the floors, from a process
+    assert metrics["val_constant_depth"]["a1"] is not None

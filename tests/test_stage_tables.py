@@ -1,5 +1,6 @@
 """The `tables` stage on hand-written evaluation results: the paper's tables in three formats, with our
-rows (mean ± std over seeds) beside the quoted ones, the flow EPE of Table 6, the figures and the index."""
+rows (mean ± std over seeds; without PP the mean with its bootstrap interval) beside the quoted ones, the
+flow EPE of Table 6, the ablation gaps as paired differences, the figures and the index."""
 
 from __future__ import annotations
 
@@ -45,6 +46,42 @@ def seed_details(base: float) -> dict:
     }  # fmt: skip
 
 
+#: Per-image CSV of each test set (the evaluate stage's reports/eval/<variant>/<set>.csv): its key columns and
+#: test images, and its headline group in ``headline()`` (GROUPS index: the base offset 0.001·index).
+IMAGE_KEYS = {
+    "nyu": (("index", "scene"), [(str(k), f"room_{k // 2}") for k in range(6)]),
+    "sevenscenes": (("scene", "seq", "frame"), [(sc, sq, str(f)) for sc in ("chess", "fire")
+                                                for sq in ("seq-01", "seq-02") for f in range(3)]),
+    "campus": (("scene", "image"), [(sc, f"img_{k}.jpg") for sc in ("lab_01", "hall_02", "room_03")
+                                    for k in (1, 2)]),
+}  # fmt: skip
+GAPS = [["full", "no_feature"], ["full", "baseline"], ["no_feature", "baseline"], ["full", "flow_pretrained"],
+        ["full", "flow_full_ft"]]
+
+
+def write_per_image(out: Path, bases: dict[int, float], rng: np.random.Generator) -> None:
+    """``out/<set>.csv`` as the evaluate stage writes them, for seeds ``bases`` (seed → base): each image's
+    metrics are its seed's headline ± noise that sums to 0 in every scene, so the mean over images (NYU,
+    7-Scenes) and the mean of the scene means (Campus) are the headline of metrics/evaluate."""
+    for name, (columns, images) in IMAGE_KEYS.items():
+        lines = [",".join(["seed", "post_process", *columns, *([] if "scene" in columns else ["scene"]),
+                           *METRIC_NAMES, "ratio"])]
+        scenes = [dict(zip(columns, key)).get("scene") for key in images]
+        for seed, base in bases.items():
+            for pp in (False, True):
+                group = GROUPS.index(f"{name}_pp" if pp else name)
+                values = metrics(base + 0.001 * group)
+                noise = rng.normal(0, 0.01, (len(images), len(METRIC_NAMES)))
+                for scene in set(scenes):
+                    rows = [i for i, s in enumerate(scenes) if s == scene]
+                    noise[rows] -= noise[rows].mean(axis=0)
+                for key, scene, n in zip(images, scenes, noise):
+                    cells = [str(seed), str(pp), *key, *([] if "scene" in columns else [scene])]
+                    cells += [repr(float(values[m] + d)) for m, d in zip(METRIC_NAMES, n)] + ["1.0"]
+                    lines.append(",".join(cells))
+        (out / f"{name}.csv").write_text("\n".join(lines) + "\n")
+
+
 #: The loss weights each variant's model was trained with (what evaluate records as ``trained_with``).
 WEIGHTS = {
     "full": {"smooth": 0.001, "planar": 0.05, "rigid": 1.0, "feature": 3.0},
@@ -56,8 +93,9 @@ WEIGHTS = {
 
 
 def write_inputs(root: Path, weights: dict[str, dict[str, float]] = WEIGHTS) -> Path:
-    """metrics/evaluate, reports/eval, flow metrics and histories for every variant, two seeds each:
-    variant i, seed s has base AbsRel 0.1 + 0.01·i + 0.002·s; trained with ``weights[variant]``."""
+    """metrics/evaluate, reports/eval (with the per-image CSVs), flow metrics and histories for every
+    variant, two seeds each: variant i, seed s has base AbsRel 0.1 + 0.01·i + 0.002·s; trained with
+    ``weights[variant]``."""
     rng = np.random.default_rng(0)
     for i, v in enumerate(VARIANTS):
         bases = {s: 0.1 + 0.01 * i + 0.002 * s for s in (0, 1)}
@@ -78,6 +116,7 @@ def write_inputs(root: Path, weights: dict[str, dict[str, float]] = WEIGHTS) -> 
                      f"{prefix}_rgb": rng.integers(0, 256, (2, 24, 32, 3), dtype=np.uint8),
                      f"{prefix}_gt": gt, f"{prefix}_pred": gt * (1.0 + 0.05 * i)}
         np.savez(out / "figures.npz", **kept)
+        write_per_image(out, bases, rng)
         hist = root / "metrics" / "train_depth" / v
         hist.mkdir(parents=True)
         (hist / "history.csv").write_text("epoch,total\n1,0.9\n2,0.8\n")
@@ -108,6 +147,7 @@ def write_inputs(root: Path, weights: dict[str, dict[str, float]] = WEIGHTS) -> 
         "flow_finetune": {"losses": ["patch", "full"], "out_dir": str(flow),
                           "pretrained": "models/flow_pretrained.pt", "model": "models/flow_{loss}.pt"},
         "evaluate": {"nyu_gt": "depths"},
+        "tables": {"gaps": GAPS, "bootstrap": 200, "confidence": 0.95, "bootstrap_seed": 0},
     }  # fmt: skip
     path = root / "params.yaml"
     path.write_text(yaml.safe_dump(params, sort_keys=False))
@@ -143,16 +183,28 @@ def reports(tmp_path_factory):
 
 def test_headline_metrics_file_is_the_ablation_table_with_floors_and_teachers(reports):
     doc = json.loads((reports.parent / "metrics" / "tables.json").read_text())
-    assert list(doc) == [*VARIANTS, "floors", "teacher"]
+    assert list(doc) == [*VARIANTS, "floors", "teacher", "gaps", "confidence"]
+    labels = (("nyu", "nyu"), ("sevenscenes", "7scenes"), ("campus", "campus"))
     for v in VARIANTS:
         row = doc[v]
         evaluated = json.loads((reports.parent / "metrics" / "evaluate" / f"{v}.json").read_text())
-        assert list(row) == ["nyu_a1", "nyu_abs_rel", "7scenes_a1", "7scenes_abs_rel", "campus_a1",
-                             "campus_abs_rel", "n_seeds"]
-        for group, label in (("nyu", "nyu"), ("sevenscenes", "7scenes"), ("campus", "campus")):
-            assert row[f"{label}_a1"] == evaluated[group]["a1"]
-            assert row[f"{label}_abs_rel"] == evaluated[group]["abs_rel"]
+        assert list(row)[:7] == ["nyu_a1", "nyu_abs_rel", "7scenes_a1", "7scenes_abs_rel", "campus_a1",
+                                 "campus_abs_rel", "n_seeds"]  # the keys before the intervals, unchanged
+        assert list(row)[7:] == [f"{label}_{m}_{end}" for _, label in labels for m in ("a1", "abs_rel")
+                                 for end in ("lo", "hi")]
+        for group, label in labels:
+            for m in ("a1", "abs_rel"):
+                assert row[f"{label}_{m}"] == evaluated[group][m]
+                assert row[f"{label}_{m}_lo"] < row[f"{label}_{m}"] < row[f"{label}_{m}_hi"]
         assert row["n_seeds"] == 2
+    assert doc["confidence"] == 0.95 and list(doc["gaps"]) == ["-".join(g) for g in GAPS]
+    for (a, b), gap in zip(GAPS, doc["gaps"].values()):
+        for _, label in labels:
+            for m in ("a1", "abs_rel"):
+                assert gap[f"{label}_{m}"] == pytest.approx(doc[a][f"{label}_{m}"] - doc[b][f"{label}_{m}"])
+                assert gap[f"{label}_{m}_lo"] <= gap[f"{label}_{m}"] <= gap[f"{label}_{m}_hi"]
+                excludes = gap[f"{label}_{m}_lo"] > 0 or gap[f"{label}_{m}_hi"] < 0
+                assert gap[f"{label}_{m}_significant"] == int(excludes)
     assert doc["floors"] == {"untrained": {"nyu_a1": 0.36, "nyu_abs_rel": 0.39},
                              "constant_depth": {"nyu_a1": 0.357, "nyu_abs_rel": 0.390}}
     assert doc["teacher"] == {
@@ -160,13 +212,46 @@ def test_headline_metrics_file_is_the_ablation_table_with_floors_and_teachers(re
         "heldout_epe": {"pretrained": 4.0, "patch": 1.5, "full": 2.5},
         "heldout_swap": {"pretrained": 0.7, "patch": pytest.approx(0.8), "full": pytest.approx(0.6)},
         "heldout_zero_flow_epe": 5.0}
-    leaves = sum(len(doc[v]) for v in VARIANTS) + 4 + 3 + 6 + 1
-    assert leaves <= 50  # a summary, not the stages' whole results
+    leaves = sum(len(doc[v]) for v in VARIANTS) + 4 + 3 + 6 + 1 + sum(map(len, doc["gaps"].values())) + 1
+    assert leaves == 5 * 19 + 14 + 5 * 24 + 1  # a summary (means, intervals, gaps), not the stages' results
+
+
+def test_ablation_gaps_table_and_claims(reports):
+    """Every gap of `tables.gaps` on every set, as the paired difference with its interval and mark; the
+    claims are exactly the marked ones, in words; the NYU floors are in the note."""
+    doc = json.loads((reports.parent / "metrics" / "tables.json").read_text())
+    rows = read_csv(reports / "tables" / "ablation_gaps.csv")
+    assert [(r["gap"], r["set"]) for r in rows] == [(f"{a} − {b}", s) for a, b in GAPS
+                                                    for s in ("NYU", "7-Scenes", "Campus")]
+    assert list(rows[0]) == ["gap", "set", "a1", "a1_lo", "a1_hi", "a1_mark", "abs_rel", "abs_rel_lo",
+                             "abs_rel_hi", "abs_rel_mark", "seeds", "images", "units"]
+    assert [(r["seeds"], r["images"], r["units"]) for r in rows[:3]] == [("2", "6", "6"), ("2", "12", "4"),
+                                                                         ("2", "6", "6")]
+    gap = doc["gaps"]["full-baseline"]
+    full_baseline = rows[3]
+    assert float(full_baseline["abs_rel"]) == gap["nyu_abs_rel"]
+    assert float(full_baseline["abs_rel_lo"]) == gap["nyu_abs_rel_lo"]
+    marks = {"✓ significant": 1, "tie": 0}
+    assert all(marks[r[f"{m}_mark"]] in (0, 1) for r in rows for m in ("a1", "abs_rel"))
+    assert gap["nyu_abs_rel_significant"] == marks[full_baseline["abs_rel_mark"]] == 1  # −0.02 on every image
+    md = (reports / "tables" / "ablation_gaps.md").read_text()
+    assert md.startswith("**Ablation gaps: paired differences with intervals**\n\n| Gap (a − b) | Test set |")
+    d, lo, hi = gap["nyu_abs_rel"], gap["nyu_abs_rel_lo"], gap["nyu_abs_rel_hi"]
+    assert "| full − baseline | NYU |" in md and f"| {d:+.3f} [{lo:.3f}, {hi:.3f}] | ✓ significant |" in md
+    assert "95 % percentile bootstrap interval (200 resamples" in md
+    assert "untrained network δ1 0.360, AbsRel 0.390; constant depth δ1 0.357, AbsRel 0.390" in md
+    claims = (reports / "tables" / "claims.md").read_text()
+    listed = claims.split("## Significant")[1].split("## Ties")[0]
+    significant = sum(v for g in doc["gaps"].values() for k, v in g.items() if k.endswith("_significant"))
+    assert listed.count("\n- ") == significant
+    assert f"- `full` < `baseline` on NYU AbsRel ({d:+.3f} [{lo:.3f}, {hi:.3f}]; `full` better)" in claims
+    ties = claims.split("## Ties (no claim either way)")[1]
+    assert significant + ties.count("\n- `") == 5 * 3 * 2  # every gap, set and metric: a claim or a tie
 
 
 def test_every_table_in_three_formats(reports):
     stems = ("table1_nyu", "table5_losses", "table6_flow", "sevenscenes_scenes", "campus_scenes",
-             "inference_time", "variants_overview")
+             "inference_time", "variants_overview", "ablation_gaps")
     for stem in stems:
         for suffix in (".md", ".csv", ".tex"):
             assert (reports / "tables" / f"{stem}{suffix}").stat().st_size > 100, stem + suffix
@@ -198,6 +283,18 @@ def test_table5_losses_ablation(reports):
                     ("full", "true", "true", "false"), ("baseline", "false", "false", "true"),
                     ("no_feature", "true", "false", "true"), ("full", "true", "true", "true")]
     assert sum(r["quoted"] == "true" for r in rows) == 6
+    doc = json.loads((reports.parent / "metrics" / "tables.json").read_text())
+    ours = [r for r in rows if r["quoted"] == "false"]
+    full = next(r for r in ours if r["variant"] == "full" and r["post_process"] == "false")
+    assert float(full["a1_lo"]) == doc["full"]["nyu_a1_lo"]
+    assert float(full["a1_hi"]) == doc["full"]["nyu_a1_hi"]
+    assert full["a1_n"] == "2" and float(full["a1"]) == pytest.approx(doc["full"]["nyu_a1"])
+    pp = next(r for r in ours if r["variant"] == "full" and r["post_process"] == "true")
+    assert pp["a1_lo"] == pp["a1_hi"] == ""  # with PP: mean ± std only
+    md = (reports / "tables" / "table5_losses.md").read_text()
+    lo, hi = doc["full"]["nyu_a1_lo"], doc["full"]["nyu_a1_hi"]
+    assert f"{doc['full']['nyu_a1']:.3f} [{lo:.3f}, {hi:.3f}]" in md
+    assert "a [lo, hi]: mean over n = 2 seeds and its 95 % bootstrap interval" in md
 
 
 def test_table5_marks_come_from_the_weights_each_run_recorded(tmp_path, monkeypatch):

@@ -99,8 +99,8 @@ def write_params(root: Path, prepared: Path, mat: Path, splits: Path, flow: Path
     """A params.yaml for the stage, with the variants of params.yaml and tiny training settings."""
     td = {"epochs": 2, "batch_size": 2, "lr": [1e-4, 1e-5, 1e-6], "lr_epochs": [27, 15, 2], "num_points": 50,
           "imagenet_weights": None, "augment": True, "seeds": [0], "workers": 0, "val_max_images": 2,
-          "val_every": 1, "state_every": 1, "resume_dir": str(root / "ckpt"), "amp": False,
-          "init_depth": None,
+          "seed_threads": None, "val_every": 1, "state_every": 1, "resume_dir": str(root / "ckpt"),
+          "amp": False, "init_depth": None,
           "pose_prior": "none", "sync_bn": True, "diagnostic_tuples": 64, "teacher_memo_mb": 64,
           "teacher": "network"}
     td.update(train)

@@ -64,7 +64,10 @@ def readme(tables: Sequence[Table], table_dir: str, figure_files: Sequence[Path]
         "embedded synthetic sets, so they are not comparable in value with the paper's).",
         "",
         f"Variants evaluated: {', '.join(f'`{v}`' for v in variants)}; seeds per variant: "
-        f"{', '.join(map(str, seeds))} (cells with several seeds show mean ± sample std, n = seeds).",
+        f"{', '.join(map(str, seeds))} (cells with several seeds show mean ± sample std, n = seeds; the "
+        "cells without PP of Tables 5, 6 and the overview show the mean with its bootstrap interval, "
+        "`mean [lo, hi]`, and `tables/ablation_gaps.md` each ablation gap as a paired difference; "
+        "`tables/claims.md` lists the gaps whose interval excludes 0).",
         "",
         "## Tables",
         "",

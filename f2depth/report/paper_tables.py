@@ -1,10 +1,13 @@
 """The paper's tables with our numbers beside the published ones.
 
 Each builder returns a :class:`Table` (rows and columns for ``f2depth.report.tables.write_table``). Our
-cells are per-seed lists (rendered ``mean ± std``, with the seed count in the ``n`` column); the
-paper's rows (``f2depth.report.published``) carry ``quoted: True`` and get the † marker. Tables 1, 5 and 6
-are NYU's; the other test sets of ``f2depth.eval.registry`` bring their per-scene table
-(``f2depth.report.layouts``) and their columns of the variants overview.
+cells are per-seed lists (rendered ``mean ± std``, with the seed count in the ``n`` column); given the
+bootstrap intervals (``f2depth.report.intervals``), the cells without PP of Tables 5, 6 and the overview
+show the mean with its interval instead (``mean [lo, hi]``), and :func:`gap_table` lists every ablation gap
+as a paired difference (:func:`claims`: the ones whose interval excludes 0, as sentences). The paper's rows
+(``f2depth.report.published``) carry ``quoted: True`` and get the † marker. Tables 1, 5 and 6 are NYU's; the
+other test sets of ``f2depth.eval.registry`` bring their per-scene table (``f2depth.report.layouts``) and
+their columns of the variants overview.
 
 Variant roles: ``full`` = F²Depth, ``baseline`` = our P²Net (no flow losses), ``no_feature`` = + L_rigid
 only, ``flow_pretrained`` / ``flow_full_ft`` = flow network not fine-tuned / fine-tuned on all pixels.
@@ -13,6 +16,7 @@ A builder leaves out the rows of variants that were not evaluated.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,10 +26,12 @@ from f2depth.eval import registry
 from f2depth.eval.metrics import METRIC_NAMES
 from f2depth.eval.protocol import Protocol
 from f2depth.io import write_text
+from f2depth.numbers import format_number
 from f2depth.report import published
+from f2depth.report.intervals import Interval, Intervals, SetIntervals
 from f2depth.report.layouts import layout
-from f2depth.report.results import VariantResults
-from f2depth.report.tables import RULE, Column, metric_columns, to_markdown, write_table
+from f2depth.report.results import HEADLINE_METRICS, HEADLINE_SETS, VariantResults
+from f2depth.report.tables import RULE, Column, MeanInterval, metric_columns, to_markdown, write_table
 
 PAPER_NYU = ("abs_rel", "rmse", "log10", "a1", "a2", "a3")
 OURS, P2NET = "full", "baseline"
@@ -54,8 +60,18 @@ class Table:
         return [stem.with_suffix(s) for s in (".md", ".csv", ".tex")]
 
 
-def _ours(r: VariantResults, group: str, names: Sequence[str]) -> dict[str, Any]:
-    return {m: r.values(group, m) for m in names} | {"n": r.n_seeds}
+def _cell(r: VariantResults, group: str, metric: str, intervals: Intervals | None) -> Any:
+    """Per-seed values of ``group.metric``, as a :class:`MeanInterval` where ``intervals`` has its interval
+    (the groups without PP)."""
+    values = r.values(group, metric)
+    found = intervals.sets.get(group) if intervals is not None and values is not None else None
+    iv = found.variants.get(r.name, {}).get(metric) if found is not None else None
+    return values if iv is None else MeanInterval(tuple(values), iv.lo, iv.hi, intervals.confidence)
+
+
+def _ours(r: VariantResults, group: str, names: Sequence[str], intervals: Intervals | None = None
+          ) -> dict[str, Any]:
+    return {m: _cell(r, group, m, intervals) for m in names} | {"n": r.n_seeds}
 
 
 def table1(results: Mapping[str, VariantResults]) -> Table:
@@ -92,7 +108,7 @@ def loss_marks(r: VariantResults) -> tuple[bool | None, bool | None]:
     return on("rigid"), on("feature")
 
 
-def table5(results: Mapping[str, VariantResults]) -> Table:
+def table5(results: Mapping[str, VariantResults], intervals: Intervals | None = None) -> Table:
     """Losses on/off (tab:tab5): baseline, + L_rigid (no_feature), + L_feature (full), × PP. The ✓/×
     marks are the weights each run was trained with (so ``dvc exp run -S lambda3=0`` shows
     L_feature × for ``full``), not the variants' intended roles."""
@@ -105,7 +121,7 @@ def table5(results: Mapping[str, VariantResults]) -> Table:
             if name in results:
                 rigid, feature = loss_marks(results[name])
                 rows.append({"variant": name, "rigid": rigid, "feature": feature, "post_process": pp,
-                             **_ours(results[name], "nyu_pp" if pp else "nyu", PAPER_NYU)})
+                             **_ours(results[name], "nyu_pp" if pp else "nyu", PAPER_NYU, intervals)})
         rows.extend(r for r in paper if r["post_process"] == pp)
     cols = [Column("variant", "Variant"), Column("rigid", "L_rigid", align="c"),
             Column("feature", "L_feature", align="c"), Column("post_process", "PP", align="c"),
@@ -119,7 +135,7 @@ EPE = Mapping[str, Mapping[str, float | None] | None]
 """variant → EPE of its flow network (``f2depth.report.results.flow_epe``), None without one."""
 
 
-def table6(results: Mapping[str, VariantResults], epe: EPE) -> Table:
+def table6(results: Mapping[str, VariantResults], epe: EPE, intervals: Intervals | None = None) -> Table:
     """Flow weights (tab:tab6, no PP): which frozen flow network supervises depth; with that network's
     EPE on the held-out synthetic pairs (all pixels and low-texture pixels)."""
     labels = {row["variant"]: row["weights"] for row in published.table6()}
@@ -127,7 +143,8 @@ def table6(results: Mapping[str, VariantResults], epe: EPE) -> Table:
     for name, label in labels.items():
         if name in results:
             e = epe.get(name) or {}
-            rows.append({"weights": label, "variant": name, **_ours(results[name], "nyu", PAPER_NYU),
+            rows.append({"weights": label, "variant": name,
+                         **_ours(results[name], "nyu", PAPER_NYU, intervals),
                          "epe_all": e.get("epe_all"), "epe_low_texture": e.get("epe_low_texture")})
     rows.append(RULE)
     rows.extend({**r, "n": None} for r in published.table6())
@@ -196,16 +213,16 @@ def inference_table(results: Mapping[str, VariantResults]) -> Table:
 NUMBERS = ("no", "one", "two", "three", "four", "five", "six", "seven", "eight", "nine")
 
 
-def overview_table(results: Mapping[str, VariantResults]) -> Table:
+def overview_table(results: Mapping[str, VariantResults], intervals: Intervals | None = None) -> Table:
     """Every variant: all eight NYU metrics ± PP, and δ1 / AbsRel on every other registered test set."""
     others = [p for p in registry.protocols() if p.name != "nyu"]
     rows: list[dict[str, Any]] = []
     for name, r in results.items():
         for pp in (False, True):
             s = "_pp" if pp else ""
-            rows.append({"variant": name, "post_process": pp, **_ours(r, f"nyu{s}", METRIC_NAMES),
-                         **{f"{layout(p.name).column}_{m}": r.values(f"{p.name}{s}", m) for p in others
-                            for m in ("abs_rel", "a1")}})  # fmt: skip
+            rows.append({"variant": name, "post_process": pp, **_ours(r, f"nyu{s}", METRIC_NAMES, intervals),
+                         **{f"{layout(p.name).column}_{m}": _cell(r, f"{p.name}{s}", m, intervals)
+                            for p in others for m in ("abs_rel", "a1")}})  # fmt: skip
     cols = [Column("variant", "Variant"), Column("post_process", "PP", align="c"), *metric_columns()]
     for p in others:
         column = layout(p.name).column
@@ -218,9 +235,103 @@ def overview_table(results: Mapping[str, VariantResults]) -> Table:
                  ["; ".join(f"{p.title}: {layout(p.name).note}" for p in others) + "."])
 
 
-def build_tables(results: Mapping[str, VariantResults], epe: EPE) -> list[Table]:
-    """Every table the evaluated variants allow, in the order of the README."""
-    tables = [table1(results), table5(results), table6(results, epe),
+METRIC_TITLES = {"a1": "δ1", "abs_rel": "AbsRel"}
+
+
+def mark(iv: Interval) -> str:
+    """✓ significant (the interval excludes 0), tie (it does not) or no interval (nothing to resample)."""
+    return "no interval" if math.isnan(iv.lo) else "✓ significant" if iv.significant else "tie"
+
+
+def _gaps(intervals: Intervals) -> list[tuple[str, str, str, SetIntervals]]:
+    """(a, b, test set title, its SetIntervals) of every gap (params order) and headline set that has it."""
+    return [(a, b, registry.protocol(group).title, found) for a, b in intervals.gaps
+            for group, found in ((g, intervals.sets.get(g)) for g in HEADLINE_SETS)
+            if found is not None and (a, b) in found.gaps]  # fmt: skip
+
+
+def _basis(intervals: Intervals) -> str:
+    seeds = sorted({s.n_seeds for s in intervals.sets.values()})
+    text = (f"paired differences a − b of the means over {', '.join(map(str, seeds))} seed(s) on the same "
+            f"test images; [lo, hi]: the {100 * intervals.confidence:g} % percentile bootstrap interval "
+            f"({intervals.resamples} resamples of the seeds and of the test images, the same draws for a and "
+            "b; Campus: the images within each scene; 7-Scenes: whole test sequences, whose frames are not "
+            "independent)")
+    one = "; with one seed the intervals cover the test images only, not the spread between training runs"
+    return text + (one if 1 in seeds else "")
+
+
+def gap_table(intervals: Intervals, floors: Mapping[str, Mapping[str, float | None]] | None = None) -> Table:
+    """The ablation gaps (``tables.gaps``): one row per gap and test set, the paired difference of δ1 and of
+    AbsRel with its interval and mark (✓ significant: the interval excludes 0; tie: it does not), the seeds,
+    test images and resampling units; ``floors`` (``f2depth.report.results.floors``) go into the note."""
+    rows: list[dict[str, Any]] = []
+    for a, b, title, found in _gaps(intervals):
+        row: dict[str, Any] = {"gap": f"{a} − {b}", "set": title}
+        for m, iv in found.gaps[(a, b)].items():
+            if m in HEADLINE_METRICS:
+                row |= {m: iv, f"{m}_mark": mark(iv)}
+        rows.append(row | {"seeds": found.n_seeds, "images": found.n_images, "units": found.n_units})
+    cols = [Column("gap", "Gap (a − b)"), Column("set", "Test set")]
+    for m in HEADLINE_METRICS:
+        cols += [Column(m, f"Δ {METRIC_TITLES[m]}"), Column(f"{m}_mark", METRIC_TITLES[m], align="l")]
+    cols += [Column("seeds", "Seeds"), Column("images", "Images"), Column("units", "Units")]
+    notes = [f"Δ: {_basis(intervals)}.",
+             "✓ significant: the interval excludes 0; tie: it does not (no claim either way; no interval: "
+             "one seed and one image or sequence per stratum, nothing to resample). δ1 (δ<1.25): "
+             "higher is better, Δ > 0 favours a; AbsRel: lower is better, Δ < 0 favours a. Units: the "
+             "images or sequences a resample draws from."]
+    named = {"untrained": "untrained network", "constant_depth": "constant depth"}
+    given = [f"{named.get(k, k)} δ1 {format_number(f['nyu_a1'])}, AbsRel "
+             f"{format_number(f.get('nyu_abs_rel'))}" for k, f in (floors or {}).items()
+             if f.get("nyu_a1") is not None]
+    if given:
+        notes.append(f"Floors on NYU (train_depth's validation images): {'; '.join(given)}.")
+    return Table("ablation_gaps", rows, cols, "Ablation gaps: paired differences with intervals",
+                 "Ablation gaps as paired differences a − b (same seeds, same test images) with bootstrap "
+                 "intervals", "tab:gaps", notes)
+
+
+def _sentences(intervals: Intervals, significant: bool) -> list[str]:
+    out = []
+    for a, b, title, found in _gaps(intervals):
+        for m in HEADLINE_METRICS:
+            iv = found.gaps[(a, b)].get(m)
+            if iv is None or iv.significant != significant:
+                continue
+            numbers = f"{iv.estimate:+.3f} [{format_number(iv.lo)}, {format_number(iv.hi)}]"
+            if not significant:
+                out.append(f"`{a}` vs `{b}` on {title} {METRIC_TITLES[m]} ({numbers})")
+                continue
+            better = a if (iv.estimate > 0) == (m == "a1") else b
+            out.append(f"`{a}` {'>' if iv.estimate > 0 else '<'} `{b}` on {title} {METRIC_TITLES[m]} "
+                       f"({numbers}; `{better}` better)")
+    return out
+
+
+def claims(intervals: Intervals) -> list[str]:
+    """The gaps whose interval excludes 0, one short sentence each:
+    "`no_feature` > `baseline` on NYU δ1 (+0.042 [0.020, 0.061]; `no_feature` better)"."""
+    return _sentences(intervals, significant=True)
+
+
+def claims_markdown(intervals: Intervals) -> str:
+    """reports/tables/claims.md: what the ablation marks support (:func:`claims`), then the ties."""
+    lines = ["# Ablation claims the intervals support", "",
+             "Written by the `tables` stage (reports/tables/ablation_gaps.md has every gap): "
+             f"{_basis(intervals)}. A claim is listed only where its interval excludes 0.", "",
+             "## Significant", ""]
+    lines += [f"- {c}" for c in claims(intervals)] or ["- none: no gap's interval excludes 0"]
+    lines += ["", "## Ties (no claim either way)", ""]
+    lines += [f"- {t}" for t in _sentences(intervals, significant=False)] or ["- none"]
+    return "\n".join(lines) + "\n"
+
+
+def build_tables(results: Mapping[str, VariantResults], epe: EPE, intervals: Intervals | None = None,
+                 floors: Mapping[str, Mapping[str, float | None]] | None = None) -> list[Table]:
+    """Every table the evaluated variants allow, in the order of the README; with ``intervals`` Tables 5, 6
+    and the overview show them, and the ablation gaps table (:func:`gap_table`) comes last."""
+    tables = [table1(results), table5(results, intervals), table6(results, epe, intervals),
               *(scene_table(results, p) for p in registry.protocols()), inference_table(results),
-              overview_table(results)]
+              overview_table(results, intervals), gap_table(intervals, floors) if intervals else None]
     return [t for t in tables if t is not None]

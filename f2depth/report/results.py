@@ -6,7 +6,9 @@
 - ``reports/eval/<variant>/figures.npz``: the first seed's predictions on a few test images;
 - ``metrics/flow_finetune/<loss>.json``: EPE of the pretrained and fine-tuned flow on held-out pairs;
 - ``metrics/train_depth/<variant>/{history,validation}.csv`` (every epoch; the measured epochs) and
-  ``metrics/flow_finetune/<loss>/history.csv``.
+  ``metrics/flow_finetune/<loss>/history.csv``;
+- ``reports/eval/<variant>/<set>.csv``: per-image metrics of every seed, for the bootstrap intervals
+  (:func:`headline_intervals`, ``f2depth.report.intervals``).
 """
 
 from __future__ import annotations
@@ -20,6 +22,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from f2depth.eval import registry
+from f2depth.eval.metrics import METRIC_NAMES
+from f2depth.report.intervals import Interval, Intervals, Pair, load_set, point, summarize
 
 EPE_KEYS = ("epe_all", "epe_noc", "epe_low_texture")
 
@@ -132,35 +138,113 @@ def flow_epe(flow_model: str | None, flow_metrics: dict[str, dict[str, Any]], pr
 
 #: The test sets of the headline, by their evaluate group and the name their columns carry.
 HEADLINE_SETS = {"nyu": "nyu", "sevenscenes": "7scenes", "campus": "campus"}
+#: The metrics of the headline, each with its interval and its gaps.
+HEADLINE_METRICS = ("a1", "abs_rel")
+#: What one bootstrap resample draws of a test set (``f2depth.report.intervals``): the per-image CSV columns
+#: naming the unit, each with all its images (a set not listed: every image on its own). 7-Scenes: a test
+#: sequence, whose consecutive frames are not independent test images.
+RESAMPLING_UNITS = {"nyu": ("index",), "sevenscenes": ("scene", "seq"), "campus": ("scene", "image")}
+
+
+def headline_intervals(results: dict[str, VariantResults], eval_dir: str | os.PathLike, gaps: list[Pair],
+                       resamples: int, confidence: float, seed: int) -> Intervals:
+    """Bootstrap intervals (``f2depth.report.intervals``) of every headline set the variants were evaluated
+    on, from ``eval_dir/<variant>/<set>.csv``: NYU with every metric (Tables 5, 6 and the overview show them),
+    the other sets with :data:`HEADLINE_METRICS`; ``gaps``: (a, b) pairs, a − b. A CSV whose seeds or point
+    estimates are not those of the variant's metrics file (another evaluate run) → ValueError naming it."""
+    sets = {}
+    for group in HEADLINE_SETS:
+        names = [v for v, r in results.items() if r.metrics.get(group)]
+        if not names:
+            continue
+        files = {v: Path(eval_dir) / v / f"{group}.csv" for v in names}
+        for v, f in files.items():
+            if not f.is_file():
+                raise FileNotFoundError(f"{f}: not found; run `dvc repro evaluate@{v}`")
+        protocol = registry.protocol(group)
+        scores = load_set(group, files, protocol.columns, RESAMPLING_UNITS.get(group, protocol.columns),
+                          protocol.headline == "scenes", METRIC_NAMES if group == "nyu" else HEADLINE_METRICS)
+        for v, estimates in point(scores).items():
+            fix = f"the evaluate runs differ; run `dvc repro evaluate@{v}`"
+            if sorted(results[v].seed_keys) != sorted(f"seed{s}" for s in scores.seeds):
+                raise ValueError(f"{files[v]}: seeds {list(scores.seeds)}, but {v}.json has "
+                                 f"{results[v].seed_keys}; {fix}")
+            for m, value in estimates.items():
+                stored = results[v].metrics[group].get(m)
+                if stored is not None and not math.isclose(value, stored, rel_tol=1e-9, abs_tol=1e-12):
+                    raise ValueError(f"{files[v]}: mean {m} {value!r}, but {v}.json has {group}.{m} "
+                                     f"{stored!r}; {fix}")
+        sets[group] = summarize(scores, gaps, resamples, confidence, seed)
+    return Intervals(tuple(gaps), confidence, resamples, sets)
+
+
+def _number(value: float | None) -> float | None:
+    """A finite float for JSON, else None."""
+    return float(value) if value is not None and math.isfinite(value) else None
+
+
+def _interval(intervals: Intervals | None, group: str, variant: str | Pair, metric: str) -> Interval | None:
+    found = intervals.sets.get(group) if intervals is not None else None
+    if found is None:
+        return None
+    return (found.gaps if isinstance(variant, tuple) else found.variants).get(variant, {}).get(metric)
+
+
+def floors(results: dict[str, VariantResults], train_metrics: dict[str, dict[str, Any]]) -> dict[str, Any]:
+    """δ1 and AbsRel of the untrained network and of a constant depth on the NYU test images, from the first
+    variant's training run (``train_metrics``: variant → ``metrics/train_depth/<variant>.json``; the untrained
+    network is the same for every variant of a seed); None where it did not record them."""
+    first = train_metrics.get(next(iter(results), ""), {})
+    return {floor: {"nyu_a1": (first.get(f"val_{floor}") or {}).get("a1"),
+                    "nyu_abs_rel": (first.get(f"val_{floor}") or {}).get("abs_rel")}
+            for floor in ("untrained", "constant_depth")}
 
 
 def headline(results: dict[str, VariantResults], train_metrics: dict[str, dict[str, Any]],
-             teacher: dict[str, Any]) -> dict[str, Any]:
+             teacher: dict[str, Any], intervals: Intervals | None = None) -> dict[str, Any]:
     """The declared DVC metrics (``metrics/tables.json``): the ablation table ``dvc exp show`` compares.
 
     One record per variant, under its name (short column names for ``dvc exp show``: ``full.nyu_a1``): δ1 and
-    AbsRel on the NYU test split, 7-Scenes and Campus (mean over seeds) and ``n_seeds``; ``floors``: the
-    untrained network and a constant depth on the NYU test images (from the first variant's training run,
-    ``train_metrics``: variant → ``metrics/train_depth/<variant>.json``; the untrained network is the same for
-    every variant of a seed); ``teacher``: the flow networks' EPE and swap consistency
-    (:func:`teacher_summary`). Everything else (histories, timings, diagnostics) stays in the stages' own
-    files, which are not DVC metrics."""
+    AbsRel on the NYU test split, 7-Scenes and Campus (mean over seeds), ``n_seeds``, then each one's interval
+    (``nyu_a1_lo``, ``nyu_a1_hi``, … from ``intervals``, :func:`headline_intervals`); ``floors``: the
+    untrained network and a constant depth on the NYU test images (:func:`floors`); ``teacher``: the flow
+    networks' EPE and swap consistency (:func:`teacher_summary`); ``gaps``: per gap ``<a>-<b>`` the paired
+    difference a − b of the means (``nyu_a1``), its interval (``nyu_a1_lo``, ``nyu_a1_hi``) and
+    ``nyu_a1_significant`` (1: the interval excludes 0, else 0; null without an interval), the same for
+    AbsRel and every set; ``confidence``: the intervals' level. Numbers only (DVC metrics); null where a set
+    was not evaluated or without ``intervals``. Everything else (histories, timings, diagnostics) stays in the
+    stages' own files, which are not DVC metrics."""
     variants: dict[str, Any] = {}
     for name, r in results.items():
         row: dict[str, Any] = {}
         for group, label in HEADLINE_SETS.items():
             scores = r.metrics.get(group) or {}
             row[f"{label}_a1"], row[f"{label}_abs_rel"] = scores.get("a1"), scores.get("abs_rel")
-        variants[name] = {**row, "n_seeds": r.n_seeds}
-    first = train_metrics.get(next(iter(results), ""), {})
-    floors = {floor: {"nyu_a1": (first.get(f"val_{floor}") or {}).get("a1"),
-                      "nyu_abs_rel": (first.get(f"val_{floor}") or {}).get("abs_rel")}
-              for floor in ("untrained", "constant_depth")}
-    clash = set(variants) & {"floors", "teacher"}
+        row["n_seeds"] = r.n_seeds
+        for group, label in HEADLINE_SETS.items():
+            for m in HEADLINE_METRICS:
+                iv = _interval(intervals, group, name, m)
+                row[f"{label}_{m}_lo"] = _number(iv.lo) if iv else None
+                row[f"{label}_{m}_hi"] = _number(iv.hi) if iv else None
+        variants[name] = row
+    gaps: dict[str, Any] = {}
+    for pair in intervals.gaps if intervals is not None else ():
+        record: dict[str, Any] = {}
+        for group, label in HEADLINE_SETS.items():
+            for m in HEADLINE_METRICS:
+                iv = _interval(intervals, group, pair, m)
+                record[f"{label}_{m}"] = _number(iv.estimate) if iv else None
+                record[f"{label}_{m}_lo"] = _number(iv.lo) if iv else None
+                record[f"{label}_{m}_hi"] = _number(iv.hi) if iv else None
+                known = iv is not None and _number(iv.lo) is not None and _number(iv.hi) is not None
+                record[f"{label}_{m}_significant"] = int(iv.significant) if known else None
+        gaps["-".join(pair)] = record
+    clash = set(variants) & {"floors", "teacher", "gaps", "confidence"}
     if clash:
         raise ValueError(f"variants {sorted(clash)}: the headline's own sections have these names; "
                          "rename the variants")
-    return {**variants, "floors": floors, "teacher": teacher}
+    return {**variants, "floors": floors(results, train_metrics), "teacher": teacher, "gaps": gaps,
+            "confidence": intervals.confidence if intervals is not None else None}
 
 
 def teacher_summary(pretrain: dict[str, Any], finetune: dict[str, dict[str, Any]]) -> dict[str, Any]:

@@ -4,6 +4,10 @@ A table is a list of rows (dicts) and a list of :class:`Column` s. Cell values m
 - a number (floats get ``digits`` decimals; ints are printed as they are),
 - a sequence of numbers, one per seed: shown as ``mean ± std`` (sample std, ddof=1; a single value is
   shown alone); the CSV keeps the mean in the column and adds ``<key>_std`` and ``<key>_n``,
+- a :class:`MeanInterval` (per-seed values and the bootstrap interval of their mean): shown as
+  ``mean [lo, hi]``; the CSV adds ``<key>_std``, ``<key>_n``, ``<key>_lo`` and ``<key>_hi``,
+- an :class:`~f2depth.report.intervals.Interval` (a paired difference): shown signed, ``+0.042 [0.020,
+  0.061]``; the CSV keeps the difference in the column and adds ``<key>_lo`` and ``<key>_hi``,
 - a bool (✓ / ×), a string, or None / NaN (shown as ``-``).
 A row with ``"quoted": True`` holds published numbers: its first cell gets a marker (†) and a note
 under the table says so; the CSV has a ``quoted`` column instead. A row ``RULE`` draws a horizontal
@@ -28,6 +32,7 @@ import numpy as np
 from f2depth.eval.metrics import METRIC_NAMES
 from f2depth.io import write_text
 from f2depth.numbers import format_number
+from f2depth.report.intervals import Interval
 
 QUOTED = "quoted"
 RULE: dict[str, Any] = {"_rule": True}
@@ -42,7 +47,7 @@ _LATEX_SPECIAL = {
     "}": r"\}", "~": r"\textasciitilde{}", "^": r"\textasciicircum{}",
     "²": r"\textsuperscript{2}", "³": r"\textsuperscript{3}", "↓": r"$\downarrow$", "↑": r"$\uparrow$",
     "±": r"$\pm$", "δ": r"$\delta$", "×": r"$\times$", "✓": r"\checkmark{}", "†": r"$^\dagger$",
-    "<": r"$<$", ">": r"$>$",
+    "<": r"$<$", ">": r"$>$", "−": r"$-$", "Δ": r"$\Delta$",
 }  # fmt: skip
 
 
@@ -56,6 +61,17 @@ class Column:
     digits: int = 3
     latex: str | None = None
     align: str = "r"
+
+
+@dataclass(frozen=True)
+class MeanInterval:
+    """A cell: per-seed ``values`` (S,) and the ``confidence`` bootstrap interval [``lo``, ``hi``] of their
+    mean (``f2depth.report.intervals``)."""
+
+    values: tuple[float, ...]
+    lo: float
+    hi: float
+    confidence: float
 
 
 def metric_columns(names: Sequence[str] = METRIC_NAMES, digits: int = 3) -> list[Column]:
@@ -87,6 +103,11 @@ def format_value(value: Any, digits: int = 3, latex: bool = False) -> str:
         return "-"
     if isinstance(value, (bool, np.bool_)):
         return latex_escape("✓" if value else "×") if latex else ("✓" if value else "×")
+    if isinstance(value, (MeanInterval, Interval)):
+        mean = seed_stats(value.values)[0] if isinstance(value, MeanInterval) else value.estimate
+        text = (f"{mean:+.{digits}f}" if isinstance(value, Interval) and math.isfinite(mean)
+                else format_number(mean, digits))
+        return f"{text} [{format_number(value.lo, digits)}, {format_number(value.hi, digits)}]"
     if _is_seq(value):
         mean, std, n = seed_stats(value)
         if n == 0:
@@ -109,6 +130,10 @@ def _seed_counts(rows: Sequence[Mapping[str, Any]], columns: Sequence[Column]) -
     return sorted(counts - {0, 1})
 
 
+def _interval_cells(rows: Sequence[Mapping[str, Any]], columns: Sequence[Column]) -> list[MeanInterval]:
+    return [r[c.key] for r in _body_rows(rows) for c in columns if isinstance(r.get(c.key), MeanInterval)]
+
+
 def _notes(rows: Sequence[Mapping[str, Any]], columns: Sequence[Column], quoted_note: str) -> list[str]:
     notes = []
     if any(r.get(QUOTED) for r in _body_rows(rows)):
@@ -116,6 +141,12 @@ def _notes(rows: Sequence[Mapping[str, Any]], columns: Sequence[Column], quoted_
     counts = _seed_counts(rows, columns)
     if counts:
         notes.append(f"a ± b: mean ± sample std over n = {', '.join(map(str, counts))} seeds")
+    cells = _interval_cells(rows, columns)
+    if cells:
+        seeds = ", ".join(map(str, sorted({len(c.values) for c in cells})))
+        levels = ", ".join(f"{100 * c:g}" for c in sorted({c.confidence for c in cells}))
+        notes.append(f"a [lo, hi]: mean over n = {seeds} seeds and its {levels} % bootstrap interval (seeds "
+                     "and test images resampled; with one seed the test images only)")
     return notes
 
 
@@ -142,15 +173,20 @@ def to_markdown(rows: Sequence[Mapping[str, Any]], columns: Sequence[Column], *,
 
 
 def to_csv(rows: Sequence[Mapping[str, Any]], columns: Sequence[Column]) -> str:
-    """CSV with one column per :class:`Column` key (mean for per-seed lists, plus ``_std``/``_n``) and a
-    ``quoted`` column when any row is quoted. Floats are written exactly (``repr``)."""
+    """CSV with one column per :class:`Column` key (mean for per-seed lists, plus ``_std``/``_n``; intervals
+    add ``_lo``/``_hi``) and a ``quoted`` column when any row is quoted. Floats are written exactly
+    (``repr``)."""
     body = _body_rows(rows)
-    seeded = {c.key for c in columns if any(_is_seq(r.get(c.key)) for r in body)}
+    seeded = {c.key for c in columns if any(_is_seq(r.get(c.key)) or isinstance(r.get(c.key), MeanInterval)
+                                            for r in body)}
+    ranged = {c.key for c in columns if any(isinstance(r.get(c.key), (MeanInterval, Interval)) for r in body)}
     fields: list[str] = []
     for c in columns:
         fields.append(c.key)
         if c.key in seeded:
             fields += [f"{c.key}_std", f"{c.key}_n"]
+        if c.key in ranged:
+            fields += [f"{c.key}_lo", f"{c.key}_hi"]
     quoted = any(r.get(QUOTED) for r in body)
     if quoted:
         fields.append(QUOTED)
@@ -173,6 +209,10 @@ def to_csv(rows: Sequence[Mapping[str, Any]], columns: Sequence[Column]) -> str:
         out: dict[str, str] = {}
         for c in columns:
             v = r.get(c.key)
+            if c.key in ranged:
+                lo, hi = (v.lo, v.hi) if isinstance(v, (MeanInterval, Interval)) else (None, None)
+                out[f"{c.key}_lo"], out[f"{c.key}_hi"] = plain(lo), plain(hi)
+                v = v.values if isinstance(v, MeanInterval) else v.estimate if isinstance(v, Interval) else v
             if c.key in seeded:
                 mean, std, n = seed_stats(v) if _is_seq(v) else (v, float("nan"), 1 if v is not None else 0)
                 out[c.key], out[f"{c.key}_std"], out[f"{c.key}_n"] = plain(mean), plain(std), str(n)

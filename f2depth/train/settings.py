@@ -54,6 +54,7 @@ class TrainSettings:
     augment: bool
     seeds: tuple[int, ...]
     workers: int = field(metadata={"min": 0})
+    seed_threads: int | None = field(metadata={"min": 1})  # CPU: each seed in its own process (seed_pool)
     val_max_images: int | None = field(metadata={"min": 1})
     val_every: int = field(metadata={"min": 1})
     state_every: int = field(metadata={"min": 1})
