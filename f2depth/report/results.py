@@ -25,6 +25,7 @@ import numpy as np
 
 from f2depth.eval import registry
 from f2depth.eval.metrics import METRIC_NAMES
+from f2depth.io import json_values
 from f2depth.report.intervals import Interval, Intervals, Pair, load_set, point, summarize
 
 EPE_KEYS = ("epe_all", "epe_noc", "epe_low_texture")
@@ -178,11 +179,6 @@ def headline_intervals(results: dict[str, VariantResults], eval_dir: str | os.Pa
     return Intervals(tuple(gaps), confidence, resamples, sets)
 
 
-def _number(value: float | None) -> float | None:
-    """A finite float for JSON, else None."""
-    return float(value) if value is not None and math.isfinite(value) else None
-
-
 def _interval(intervals: Intervals | None, group: str, variant: str | Pair, metric: str) -> Interval | None:
     found = intervals.sets.get(group) if intervals is not None else None
     if found is None:
@@ -224,8 +220,8 @@ def headline(results: dict[str, VariantResults], train_metrics: dict[str, dict[s
         for group, label in HEADLINE_SETS.items():
             for m in HEADLINE_METRICS:
                 iv = _interval(intervals, group, name, m)
-                row[f"{label}_{m}_lo"] = _number(iv.lo) if iv else None
-                row[f"{label}_{m}_hi"] = _number(iv.hi) if iv else None
+                row[f"{label}_{m}_lo"] = json_values(iv.lo) if iv else None
+                row[f"{label}_{m}_hi"] = json_values(iv.hi) if iv else None
         variants[name] = row
     gaps: dict[str, Any] = {}
     for pair in intervals.gaps if intervals is not None else ():
@@ -233,10 +229,10 @@ def headline(results: dict[str, VariantResults], train_metrics: dict[str, dict[s
         for group, label in HEADLINE_SETS.items():
             for m in HEADLINE_METRICS:
                 iv = _interval(intervals, group, pair, m)
-                record[f"{label}_{m}"] = _number(iv.estimate) if iv else None
-                record[f"{label}_{m}_lo"] = _number(iv.lo) if iv else None
-                record[f"{label}_{m}_hi"] = _number(iv.hi) if iv else None
-                known = iv is not None and _number(iv.lo) is not None and _number(iv.hi) is not None
+                record[f"{label}_{m}"] = json_values(iv.estimate) if iv else None
+                record[f"{label}_{m}_lo"] = json_values(iv.lo) if iv else None
+                record[f"{label}_{m}_hi"] = json_values(iv.hi) if iv else None
+                known = iv is not None and math.isfinite(iv.lo) and math.isfinite(iv.hi)
                 record[f"{label}_{m}_significant"] = int(iv.significant) if known else None
         gaps["-".join(pair)] = record
     clash = set(variants) & {"floors", "teacher", "gaps", "confidence"}
