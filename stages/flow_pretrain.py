@@ -26,22 +26,20 @@ import time
 from dataclasses import asdict, dataclass, field
 from typing import Literal
 
-import numpy as np
 import torch
 
 from f2depth import params as P
 from f2depth import threads, tracking
-from f2depth.data.images import read_image
 from f2depth.data.sintel import list_pairs, list_sequences
 from f2depth.epochs import write_history
 from f2depth.flow import NETWORKS, build_network, load_flow_model, save_flow_model
 from f2depth.flow import bootstrap as chairs_route
+from f2depth.flow.chairs_ranks import chairs_pool, pretrain_in_ranks
 from f2depth.flow.pretrain import HISTORY_COLUMNS, PretrainConfig, clear_resume, pretrain
 from f2depth.flow.validate import evaluate_generated, evaluate_prepared, evaluate_sintel
 from f2depth.io import write_json
 from f2depth.numbers import format_number as fmt
 from f2depth.stage import run_stage
-from f2depth.synth.chairs import texture_pool
 
 METRICS = "metrics/flow_pretrain.json"
 HISTORY = "metrics/flow_pretrain/history.csv"
@@ -94,14 +92,16 @@ def split_sequences(p: dict, stage: PretrainStage) -> tuple[list[str], list[str]
 
 def pretrain_on_chairs(model, stage: PretrainStage, seed: int, train_frames: list, device: str, run
                        ) -> tuple[dict, tuple]:
-    """The chairs route → (training result, held-out generated pairs)."""
+    """The chairs route → (training result, held-out generated pairs); on a CPU in `cpu_ranks` processes."""
     cfg = stage.chairs
-    images = [read_image(path) for path in train_frames]
-    pool = texture_pool(cfg.data, np.random.default_rng([seed, 7]), images)
+    pool = chairs_pool(cfg, seed, train_frames)
     generated = chairs_route.heldout_pairs(cfg, seed, pool)
-    result = chairs_route.pretrain_chairs(
-        model, pool, cfg, seed, stage.network, generated, stage.resume_dir, device,
-        on_epoch=run.log_epoch)
+    if device == "cpu" and cfg.cpu_ranks:
+        result = pretrain_in_ranks(model, cfg, seed, stage.network, train_frames, stage.resume_dir,
+                                   on_epoch=run.log_epoch)
+    else:
+        result = chairs_route.pretrain_chairs(model, pool, cfg, seed, stage.network, generated,
+                                              stage.resume_dir, device, on_epoch=run.log_epoch)
     return result, generated
 
 

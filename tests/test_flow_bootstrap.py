@@ -38,7 +38,8 @@ def small_config(data_changes: dict | None = None, **changes) -> BootstrapConfig
                               "feature_lr": 1e-3, "epochs": 3, "lr": 3e-4, "final_lr": 3e-5,
                               "matching_weight": 0.5, "matching_strides": (4,),
                               "w_scales": (0.32, 0.08, 0.02, 0.01, 0.005), "calibration_pairs": 2,
-                              "heldout_pairs": 2, "average_epochs": 1, "amp": False, **changes})
+                              "heldout_pairs": 2, "average_epochs": 1, "amp": False, "cpu_ranks": None,
+                              **changes})
 
 
 def textured_shift(shift: int, generator: torch.Generator, n: int = 2) -> tuple[torch.Tensor, torch.Tensor]:
@@ -132,7 +133,7 @@ def test_a_short_bootstrap_learns_flow_that_follows_the_images():
     cfg = BootstrapConfig(data=data, batch_size=8, steps_per_epoch=50, feature_epochs=2, feature_lr=2e-3,
                           epochs=4, lr=6e-4, final_lr=1e-4, matching_weight=0.5, matching_strides=(4, 8),
                           w_scales=(0.32, 0.08, 0.02, 0.01, 0.005), calibration_pairs=4, heldout_pairs=16,
-                          average_epochs=1, amp=False)
+                          average_epochs=1, amp=False, cpu_ranks=None)
     pool = texture_pool(data, np.random.default_rng(0))
     model = PWCLite()
     out = pretrain_chairs(model, pool, cfg, seed=0, network="pwclite", heldout=heldout_pairs(cfg, 0, pool),

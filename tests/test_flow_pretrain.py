@@ -161,7 +161,7 @@ def tiny_chairs() -> dict:
             "lr": 3e-4, "final_lr": 1e-4, "matching_weight": 0.5, "matching_strides": [4, 8],
             "w_scales": [0.32, 0.08, 0.02, 0.01, 0.005],
             "calibration_pairs": 2, "heldout_pairs": 3, "average_epochs": 1,
-            "amp": False}
+            "amp": False, "cpu_ranks": None}
 
 
 def run_stage(tmp_path: Path, monkeypatch, **section) -> dict:

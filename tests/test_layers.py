@@ -15,8 +15,8 @@ import dvc_deps  # noqa: E402
 LAYERS: tuple[tuple[str, ...], ...] = (
     ("threads",),  # the CPUs a process may use (the process pools of `workers` keep to them)
     # primitives: geometry, cameras, parameters, files, tracking, superpixels
-    ("numbers", "io", "params", "precision", "workers", "tracking", "colour", "geometry", "camera",
-     "superpixels", "signals"),
+    ("numbers", "io", "params", "precision", "workers", "processes", "data_parallel", "tracking", "colour",
+     "geometry", "camera", "superpixels", "signals"),
     ("epochs", "profile", "averaging"),  # the one training-loop skeleton, profiling, weight averaging
     ("data",),  # on-disk formats, loaders, the typed samples, the prepare stage
     ("synth",),  # the embedded synthetic world (and the flow teacher's generated pairs)

@@ -83,7 +83,7 @@ def _seed_weights(root, params_path, monkeypatch, seed: int) -> tuple[dict[str, 
 
 
 def test_seeds_side_by_side_give_each_seed_the_weights_it_gets_alone(tmp_path, monkeypatch, restore_threads):
-    """train_depth.seed_threads: 1 trains seeds 0 and 1 in two processes at once (f2depth.train.seed_pool);
+    """train_depth.seed_threads: 1 trains seeds 0 and 1 in two processes at once (f2depth.processes);
     seed 1's weights are bit-identical to seed 1 trained alone in the stage's own process at one thread, so
     neither the other seed's process, nor how the OS shares the cores, nor the process boundary changes a
     result. The metrics file records both seeds, the stage process's metrics come from the processes."""

@@ -13,7 +13,7 @@ from torch.utils.data import default_collate
 
 from f2depth import precision
 from f2depth.depth import DepthModel, DepthModelConfig
-from f2depth.flow import PWCLite
+from f2depth.flow import FlowNetwork, PWCLite
 from f2depth.geometry import in_view_mask, relative_pose, rigid_flow, warp
 from f2depth.losses import NonFiniteLossError, rigid_flow_loss, total_loss
 from f2depth.precision import amp_dtype
@@ -341,3 +341,45 @@ def test_depth_network_learns_a_rendered_room_from_true_pose_and_flow():
     abs_rel, corr = errors()
     assert abs(corr0) < 0.5 and corr > 0.9, (corr0, corr)
     assert abs_rel < 0.4 * abs_rel0, (abs_rel0, abs_rel)
+
+
+class _ShiftNetwork(FlowNetwork):
+    """A flow network that reports a constant shift forwards and ``back`` backwards (the check's input)."""
+
+    def __init__(self, back: float) -> None:
+        super().__init__()
+        self.scale = torch.nn.Parameter(torch.ones(()))
+        self.back = back
+
+    def forward(self, img1, img2, with_backward=True):
+        b, _, h, w = img1.shape
+        fw = torch.zeros(b, 2, h, w)
+        fw[:, 0] = 3.0 * self.scale
+        bw = torch.zeros(b, 2, h, w)
+        bw[:, 0] = self.back
+        return [fw], ([bw] if with_backward else None)
+
+    def features(self, img):
+        return [img.mean(1, keepdim=True)]
+
+
+@pytest.mark.parametrize("memo_mb", [0, 64])
+def test_consistency_mask_keeps_where_the_teachers_flows_agree_and_rigid_reads_only_there(memo_mb):
+    """train_depth.rigid_mask: consistency. A teacher whose backward flow undoes its forward flow (3 px
+    right, then 3 px left) is valid wherever the forward flow stays in the image (the last 3 columns leave
+    it); one whose backward flow repeats the forward flow is valid nowhere. L_rigid then averages only the
+    valid pixels: a rigid flow wrong on the invalid columns alone costs nothing."""
+    img = torch.rand(2, 3, 16, 20)
+    agree = FlowTeacher(_ShiftNetwork(back=-3.0), memo_mb=memo_mb, consistency_mask=True)
+    for _ in range(2):  # the second call: from the memo when there is one
+        out = agree(img, img.flip(0))
+        assert out.valid.shape == (2, 1, 16, 20)
+        assert torch.equal(out.valid[..., :17], torch.ones(2, 1, 16, 17))
+        assert torch.equal(out.valid[..., 17:], torch.zeros(2, 1, 16, 3))
+    disagree = FlowTeacher(_ShiftNetwork(back=3.0), memo_mb=memo_mb, consistency_mask=True)
+    assert disagree(img, img.flip(0)).valid.sum() == 0
+    assert FlowTeacher(_ShiftNetwork(back=-3.0)).__call__(img, img).valid is None  # the paper: every pixel
+    rigid = out.flow.clone()
+    rigid[..., 17:] += 5.0  # wrong only where the teacher is not trusted
+    assert rigid_flow_loss(rigid, out.flow, out.valid) == 0
+    assert rigid_flow_loss(rigid, out.flow) > 0

@@ -39,6 +39,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from f2depth.averaging import WeightAverage
+from f2depth.data_parallel import SINGLE, Group
 from f2depth.epochs import EpochLoop, epoch_rng
 from f2depth.epochs import fingerprint as hash_settings
 from f2depth.flow.correlation import MAX_DISPLACEMENT, correlation
@@ -75,6 +76,7 @@ class BootstrapConfig:
     heldout_pairs: int = field(metadata={"min": 1})      # generated test pairs (own seed), never trained on
     average_epochs: int = field(metadata={"min": 1})     # the weights kept: mean over phase B's last N epochs
     amp: bool                                            # network passes under autocast (f2depth.precision)
+    cpu_ranks: int | None = field(metadata={"min": 1})   # CPU: 1-thread data-parallel processes
     weight_decay: float = field(default=0.0, metadata={"fixed": True})
 
     def __post_init__(self) -> None:
@@ -84,6 +86,9 @@ class BootstrapConfig:
             raise ValueError(f"final_lr = {self.final_lr} is above lr = {self.lr}; phase B's lr only falls")
         if any(s < 1 for s in self.matching_strides):
             raise ValueError(f"matching_strides = {list(self.matching_strides)} must be pyramid strides >= 1")
+        if self.cpu_ranks and self.batch_size % self.cpu_ranks:
+            raise ValueError(f"batch_size = {self.batch_size} does not split into cpu_ranks = "
+                             f"{self.cpu_ranks} equal parts; make it a multiple of cpu_ranks")
         if self.average_epochs > self.epochs:
             raise ValueError(f"average_epochs = {self.average_epochs} is more than phase B's epochs = "
                              f"{self.epochs}; set it to at most {self.epochs} (1: the last epoch's weights)")
@@ -322,13 +327,16 @@ def pretrain_chairs(model: FlowNetwork, pool: torch.Tensor, cfg: BootstrapConfig
                     heldout: Sequence[torch.Tensor], resume_dir: str | os.PathLike | None = None,
                     device: str = "cpu",
                     on_epoch: Callable[[dict[str, Any]], None] | None = None,
-                    progress: bool = True) -> dict[str, Any]:
+                    progress: bool = True, group: Group = SINGLE) -> dict[str, Any]:
     """Train ``model`` in place (module docstring) and leave it holding the mean of the last
     ``average_epochs`` epochs' weights → ``{"epochs_run", "resumed_from", "averaged_epochs", "seconds",
     "history", "start", "after_features", "last_epoch", "final"}`` (the last four: :func:`heldout_scores` on
     the generated ``heldout`` pairs, :func:`heldout_pairs`, after the init, after phase A, with the last
     epoch's weights and with the mean kept).
-    ``on_epoch(row)`` as in :func:`f2depth.flow.pretrain.pretrain`."""
+    ``on_epoch(row)`` as in :func:`f2depth.flow.pretrain.pretrain`. ``group``: this process's rank of a
+    data-parallel run (:mod:`f2depth.flow.chairs_ranks`): it trains on its part of every global batch, the
+    ranks average their gradients, and only rank 0 measures, saves the resume file and calls ``on_epoch``;
+    the other ranks' ``model`` ends with the last epoch's weights, and they return ``{"epochs_run"}``."""
     model.to(device).train()
     opt_a = make_optimizer(model.feature_module(), _Lr(cfg.feature_lr, cfg.weight_decay))
     opt_b = make_optimizer(model, _Lr(cfg.lr, cfg.weight_decay))
@@ -336,20 +344,23 @@ def pretrain_chairs(model: FlowNetwork, pool: torch.Tensor, cfg: BootstrapConfig
     loop = EpochLoop("flow_pretrain", cfg.total_epochs, {"model": model, "features_optimizer": opt_a,
                                                          "optimizer": opt_b, "average": average},
                      Path(resume_dir) / "last.pt" if resume_dir is not None else None,
-                     run_fingerprint(cfg, seed, pool, network), progress=progress)
+                     run_fingerprint(cfg, seed, pool, network), main=group.main, progress=progress)
     test = tuple(heldout)
     calibration = calibration_batch(cfg, seed, pool, device)
     scores: dict[str, Any] = {}
     if not loop.restore():
-        bootstrap_start(model, calibration, seed)
-        scores["start"] = heldout_scores(model, test, cfg, device)
+        bootstrap_start(model, calibration, seed)  # the same weights on every rank
+        if group.main:
+            scores["start"] = heldout_scores(model, test, cfg, device)
     phase, b_step = "features", 0
 
     def batches(epoch: int) -> _Batches:
         nonlocal phase, b_step
         phase = "features" if epoch <= cfg.feature_epochs else "all"
         b_step = max(epoch - cfg.feature_epochs - 1, 0) * cfg.steps_per_epoch  # also right after a resume
-        return _Batches(cfg, pool, epoch_rng(seed, epoch))
+        if epoch == cfg.feature_epochs + 1:
+            group.broadcast(model)  # rank 0 alone recalibrated the decoder after phase A
+        return _Batches(cfg, pool, epoch_rng(seed, epoch), group.part(cfg.batch_size))
 
     def step(batch: tuple[torch.Tensor, ...]) -> dict[str, float]:
         nonlocal b_step
@@ -361,16 +372,19 @@ def pretrain_chairs(model: FlowNetwork, pool: torch.Tensor, cfg: BootstrapConfig
         if phase == "features":
             loss, optim = match, opt_a
         else:
-            for group in opt_b.param_groups:
-                group["lr"] = cfg.phase_b_lr(b_step)
+            for param_group in opt_b.param_groups:
+                param_group["lr"] = cfg.phase_b_lr(b_step)
             b_step += 1
             epe, levels = multiscale_epe([f.float() for f in flows], gt, cfg.w_scales)
             loss, optim = epe + cfg.matching_weight * match, opt_b
             stats["epe"] = levels[0]
-        if not torch.isfinite(loss):
-            raise FloatingPointError(f"loss is {loss.item()}")
-        optim.zero_grad(set_to_none=True)
-        backward_and_step(loss, optim)
+        if group.world > 1:
+            _backward_averaged(loss, optim, group)
+        else:
+            if not torch.isfinite(loss):
+                raise FloatingPointError(f"loss is {loss.item()}")
+            optim.zero_grad(set_to_none=True)
+            backward_and_step(loss, optim)
         return {"loss": float(loss.detach()), **stats}
 
     def end_epoch(row: dict[str, Any]) -> dict[str, Any]:
@@ -384,9 +398,12 @@ def pretrain_chairs(model: FlowNetwork, pool: torch.Tensor, cfg: BootstrapConfig
         return out
 
     t0 = time.perf_counter()
-    loop.run_epochs(batches, step, end_epoch=end_epoch,
-                    on_epoch=on_epoch)
+    loop.run_epochs(batches, step, end_epoch=end_epoch, on_epoch=on_epoch,
+                    reduce=group.mean if group.world > 1 else None,
+                    barrier=group.barrier if group.world > 1 else None)
     model.eval()
+    if not group.main:
+        return {"epochs_run": cfg.total_epochs - loop.resumed_from}
     scores["last_epoch"] = heldout_scores(model, test, cfg, device)
     average.copy_to(model)
     scores["final"] = heldout_scores(model, test, cfg, device)
@@ -395,20 +412,35 @@ def pretrain_chairs(model: FlowNetwork, pool: torch.Tensor, cfg: BootstrapConfig
             "seconds": round(time.perf_counter() - t0, 1), "history": loop.history, **scores}
 
 
+def _backward_averaged(loss: torch.Tensor, optim: torch.optim.Optimizer, group: Group) -> None:
+    """A data-parallel step: back-propagate this rank's ``loss``, average the gradients over the ranks and
+    step; raises ``FloatingPointError`` on every rank (none steps) when any rank's loss is not finite."""
+    finite = bool(torch.isfinite(loss))
+    optim.zero_grad(set_to_none=True)
+    if finite:
+        loss.backward()
+    params = [p for g in optim.param_groups for p in g["params"]]
+    if not group.average_gradients(params, finite):
+        raise FloatingPointError(f"a rank's loss is not finite (this rank's: {loss.item()})")
+    optim.step()
+
+
 @dataclass(frozen=True)
 class _Batches:
-    """One epoch of generated batches (a length, so the progress bar shows the steps left)."""
+    """One epoch of generated batches (a length, so the progress bar shows the steps left); ``part``: the
+    pairs of each global batch this rank renders."""
 
     cfg: BootstrapConfig
     pool: torch.Tensor
     rng: np.random.Generator
+    part: slice
 
     def __len__(self) -> int:
         return self.cfg.steps_per_epoch
 
     def __iter__(self) -> Iterator[tuple[torch.Tensor, ...]]:
         for _ in range(self.cfg.steps_per_epoch):
-            yield render_pairs(self.cfg.data, self.pool, self.rng, self.cfg.batch_size)
+            yield render_pairs(self.cfg.data, self.pool, self.rng, self.cfg.batch_size, self.part)
 
 
 @dataclass(frozen=True)

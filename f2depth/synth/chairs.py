@@ -298,11 +298,12 @@ def flow_truth(spec: ChairsSpec, layers: Sequence[Layer]) -> tuple[torch.Tensor,
     return (x2 - x1).permute(2, 0, 1), ((top2 != top1) | leaves)[None]
 
 
-def render_pairs(spec: ChairsSpec, pool: torch.Tensor, rng: np.random.Generator, n: int
-                 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+def render_pairs(spec: ChairsSpec, pool: torch.Tensor, rng: np.random.Generator, n: int,
+                 part: slice = slice(None)) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """``n`` new pairs → ``img1, img2 (n,3,H,W)`` in [0, 1], ``flow (n,2,H,W)`` px x first (frame 1 → 2),
-    ``occluded (n,1,H,W)`` bool. ``pool``: :func:`texture_pool`'s ``(N,3,Ht,Wt)``."""
-    scenes = [draw_layers(spec, rng, len(pool)) for _ in range(n)]
+    ``occluded (n,1,H,W)`` bool. ``pool``: :func:`texture_pool`'s ``(N,3,Ht,Wt)``. ``part``: render only
+    these of the ``n`` pairs drawn (a data-parallel rank's share; ``rng`` moves on as for all ``n``)."""
+    scenes = [draw_layers(spec, rng, len(pool)) for _ in range(n)][part]
     frames = render_frames(spec, pool, scenes)
     flow, occluded = zip(*(flow_truth(spec, layers) for layers in scenes))
     return frames[:, 0], frames[:, 1], torch.stack(flow), torch.stack(occluded)

@@ -100,4 +100,4 @@ class ExactTeacher(FlowTeacher):
         out = super()._run(target, source, features)
         with torch.autocast(target.device.type, enabled=False):
             exact, valid = self.exact_flow(target.float(), source.float())
-        return TeacherOutput(torch.where(valid, exact, out.flow), out.feats_tgt, out.feats_src)
+        return TeacherOutput(torch.where(valid, exact, out.flow), out.feats_tgt, out.feats_src, out.valid)

@@ -24,14 +24,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from f2depth import tracking
+from f2depth import processes, tracking
 from f2depth.data.errors import DataError
 from f2depth.data.prepared import VAL_TUPLES, PreparedSet
 from f2depth.depth import DepthModel, DepthModelConfig, save_checkpoint
 from f2depth.epochs import fingerprints
 from f2depth.poses.store import PosePriors
 from f2depth.superpixels import scaled_min_area
-from f2depth.train import seed_pool
 from f2depth.train.data import DataConfig, TupleDataset, batch_problem
 from f2depth.train.diagnostics import DIAGNOSTIC_KEYS, TrainTruth, constant_depth_metrics, diagnose
 from f2depth.train.distributed import DistContext, barrier
@@ -152,9 +151,11 @@ def _parts(s: TrainSettings, ctx: DistContext, measures: bool = True) -> _Parts:
                            priors=priors)
     if problem := batch_problem(len(dataset), s.batch_size, ctx.world_size):  # before any model is built
         raise DataError(Path(s.prepared) / "tuples.csv", *problem)
+    masked = s.rigid_mask == "consistency"  # of the network's flow: the exact flow needs no mask
     teacher = (None if not s.flow_model or not measures
                else ExactTeacher.from_prepared(s.flow_model, prepared, ctx.device, s.teacher_memo_mb)
-               if s.teacher == "exact" else FlowTeacher.load(s.flow_model, ctx.device, s.teacher_memo_mb))
+               if s.teacher == "exact"
+               else FlowTeacher.load(s.flow_model, ctx.device, s.teacher_memo_mb, masked))
     if not s.nyu_labeled and not prepared.val_tuples:
         raise DataError(Path(s.prepared) / VAL_TUPLES, "no validation set: data.nyu_labeled is null and the "
                         "prepared set holds no held-out tuples", "set prepare.val_share (e.g. 0.2) and re-run"
@@ -204,12 +205,12 @@ def _train_seed(s: TrainSettings, parts: _Parts, seed: int, build_dir: Path, ctx
 def _count_epoch(row: dict[str, Any]) -> None:
     """A seed process's ``on_epoch``: a trained epoch moves the stage's bar (row 0: the untrained network)."""
     if row["epoch"] > 0:
-        seed_pool.epoch_done()
+        processes.epoch_done()
 
 
 def _seed_job(s: TrainSettings, seed: int, build_dir: Path, resume: bool, fingerprint: str
               ) -> tuple[dict[str, Any], list[dict[str, Any]], dict[str, Any]]:
-    """One seed in a :mod:`f2depth.train.seed_pool` process: its own data, teacher and validators → (its
+    """One seed in a :mod:`f2depth.processes` process: its own data, teacher and validators → (its
     summary, its history, the floors)."""
     logging.basicConfig(level=logging.WARNING, format="%(message)s")
     parts = _parts(s, DistContext())  # in_processes: a CPU run
@@ -221,7 +222,7 @@ def _seed_job(s: TrainSettings, seed: int, build_dir: Path, resume: bool, finger
 
 
 def in_processes(s: TrainSettings, ctx: DistContext) -> bool:
-    """Whether the seeds train in :mod:`f2depth.train.seed_pool` processes: on a CPU without torchrun, when
+    """Whether the seeds train in :mod:`f2depth.processes` processes: on a CPU without torchrun, when
     ``train_depth.seed_threads`` fixes their thread count."""
     return s.seed_threads is not None and ctx.device.type == "cpu" and not ctx.distributed
 
@@ -258,7 +259,7 @@ def train_variant(
     floors = parts.floors()
     if pooled:
         jobs = [(s, seed, build_dir, resume, run_fps[seed]) for seed in s.seeds]
-        done = seed_pool.run_jobs(_seed_job, jobs, s.seed_threads, s.epochs * len(s.seeds),
+        done = processes.run_jobs(_seed_job, jobs, s.seed_threads, s.epochs * len(s.seeds),
                                   f"train_depth[{s.variant}] {len(s.seeds)} seed(s)", progress)
         trained, floors = [(summary, history) for summary, history, _ in done], done[0][2]
         for seed, (summary, history) in zip(s.seeds, trained):

@@ -29,6 +29,9 @@ POSE_PRIORS = ("none", "geometric")
 #: train_depth.teacher: network = the frozen flow network (the paper); exact = its flow replaced by the
 #: synthetic world's exact rigid flow, a diagnosis of the synthetic default (f2depth.train.exact_teacher)
 TEACHERS = ("network", "exact")
+#: train_depth.rigid_mask: none = L_rigid on every pixel (the paper); consistency = where the teacher's flows
+#: target → source and back agree (f2depth.train.teacher, docs/method.md)
+RIGID_MASKS = ("none", "consistency")
 @dataclass(frozen=True)
 class Variant:
     """One ``variants.<name>`` entry of params.yaml."""
@@ -54,7 +57,7 @@ class TrainSettings:
     augment: bool
     seeds: tuple[int, ...]
     workers: int = field(metadata={"min": 0})
-    seed_threads: int | None = field(metadata={"min": 1})  # CPU: each seed in its own process (seed_pool)
+    seed_threads: int | None = field(metadata={"min": 1})  # CPU: a process per seed (f2depth.processes)
     val_max_images: int | None = field(metadata={"min": 1})
     val_every: int = field(metadata={"min": 1})
     state_every: int = field(metadata={"min": 1})
@@ -62,6 +65,7 @@ class TrainSettings:
     sync_bn: bool
     teacher_memo_mb: float = field(metadata={"min": 0})  # f2depth.train.teacher: the frozen network's memo
     teacher: str  # network (the paper) | exact (diagnosis: the synthetic world's rigid flow)
+    rigid_mask: str  # none (the paper) | consistency: L_rigid where the teacher's two flows agree
     resume_dir: str
     # ---- resolved for the variant
     variant: str
@@ -82,6 +86,8 @@ class TrainSettings:
             raise ValueError(f"pose_prior must be one of {', '.join(POSE_PRIORS)}, got {self.pose_prior!r}")
         if self.teacher not in TEACHERS:
             raise ValueError(f"teacher must be one of {', '.join(TEACHERS)}, got {self.teacher!r}")
+        if self.rigid_mask not in RIGID_MASKS:
+            raise ValueError(f"rigid_mask must be one of {', '.join(RIGID_MASKS)}, got {self.rigid_mask!r}")
         _ = self.schedule  # LRSchedule's rules check lr and lr_epochs (its errors name them)
         if not self.seeds or len(set(self.seeds)) != len(self.seeds):
             raise ValueError(f"seeds must be a non-empty list of distinct integers, got {list(self.seeds)}")

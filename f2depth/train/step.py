@@ -152,7 +152,7 @@ def loss_terms(net: NetOutput, batch: dict[str, torch.Tensor], flow: TeacherOutp
         with torch.set_grad_enabled(grad and (w["rigid"] != 0 or w["feature"] != 0)):
             f_rigid = rigid_flow(net.depth, K, net.T_next)
         with torch.set_grad_enabled(grad and w["rigid"] != 0):
-            terms["rigid"] = rigid_flow_loss(f_rigid, flow.flow)
+            terms["rigid"] = rigid_flow_loss(f_rigid, flow.flow, flow.valid)
         if flow.feats_tgt:
             with torch.set_grad_enabled(grad and w["feature"] != 0):
                 terms["feature"] = feature_synthesis_loss(flow.feats_tgt, flow.feats_src, f_rigid)

@@ -37,16 +37,19 @@ from dataclasses import dataclass
 import torch
 
 from f2depth.flow import FlowNetwork, load_flow_model
+from f2depth.flow.loss import non_occluded_by_consistency
 
 
 @dataclass
 class TeacherOutput:
     """flow (B,2,H,W) pixels, x first, target → source; feats_tgt / feats_src: the pyramid levels
-    (B,C_l,h_l,w_l) (PWC-Lite: six) or empty lists when features were not requested."""
+    (B,C_l,h_l,w_l) (PWC-Lite: six) or empty lists when features were not requested; valid (B,1,H,W) {0, 1}:
+    where the network's flows target → source and back agree (``consistency_mask``), None: everywhere."""
 
     flow: torch.Tensor
     feats_tgt: list[torch.Tensor]
     feats_src: list[torch.Tensor]
+    valid: torch.Tensor | None = None
 
 
 class FlowTeacher:
@@ -54,9 +57,13 @@ class FlowTeacher:
 
     Not an ``nn.Module`` on purpose: ``model.train()``, optimizers, DDP and checkpoints of the depth model
     never see it. ``memo_mb`` > 0 keeps each pair's outputs up to that many MB (module docstring).
+    ``consistency_mask``: also run the flow source → target and mark where the two disagree (ARFlow's
+    forward–backward check, :func:`f2depth.flow.loss.non_occluded_by_consistency`) as not valid.
     """
 
-    def __init__(self, net: FlowNetwork, device: str | torch.device = "cpu", memo_mb: float = 0.0) -> None:
+    def __init__(self, net: FlowNetwork, device: str | torch.device = "cpu", memo_mb: float = 0.0,
+                 consistency_mask: bool = False) -> None:
+        self.consistency_mask = consistency_mask
         self.net = net.to(device).eval()
         for p in self.net.parameters():
             p.requires_grad_(False)
@@ -67,10 +74,10 @@ class FlowTeacher:
         self.memo_hits = 0  # pairs served from the memo
 
     @classmethod
-    def load(cls, path: str | os.PathLike, device: str | torch.device = "cpu", memo_mb: float = 0.0
-             ) -> FlowTeacher:
+    def load(cls, path: str | os.PathLike, device: str | torch.device = "cpu", memo_mb: float = 0.0,
+             consistency_mask: bool = False) -> FlowTeacher:
         """From one of our ``models/flow_*.pt`` (or an ARFlow checkpoint), via ``load_flow_model``."""
-        return cls(load_flow_model(path), device, memo_mb)
+        return cls(load_flow_model(path), device, memo_mb, consistency_mask)
 
     @torch.no_grad()
     def __call__(self, target: torch.Tensor, source: torch.Tensor, features: bool = True) -> TeacherOutput:
@@ -84,7 +91,8 @@ class FlowTeacher:
             return _stack([self.memo[key] for key in keys])
         whole = len(missing) == len(keys)
         out = self._run(target if whole else target[missing], source if whole else source[missing], features)
-        ran = {i: _Entry(out.flow[j], [f[j] for f in out.feats_tgt], [f[j] for f in out.feats_src])
+        ran = {i: _Entry(out.flow[j], [f[j] for f in out.feats_tgt], [f[j] for f in out.feats_src],
+                         None if out.valid is None else out.valid[j])
                for j, i in enumerate(missing)}
         for i, entry in ran.items():
             self._keep(keys[i], entry)
@@ -96,20 +104,24 @@ class FlowTeacher:
         """Memoise a copy of ``entry`` (views of a batch) when the budget has room and the key is new."""
         if key not in self.memo and self.memo_used + entry.nbytes <= self.memo_bytes:
             self.memo[key] = _Entry(entry.flow.clone(), [f.clone() for f in entry.feats_tgt],
-                                    [f.clone() for f in entry.feats_src])
+                                    [f.clone() for f in entry.feats_src],
+                                    None if entry.valid is None else entry.valid.clone())
             self.memo_used += entry.nbytes
 
     def _run(self, target: torch.Tensor, source: torch.Tensor, features: bool) -> TeacherOutput:
         self.net.eval()
-        flows, _ = self.net(target, source, with_backward=False)
+        flows, back = self.net(target, source, with_backward=self.consistency_mask)
         flow = flows[0].float().contiguous()
+        valid = None
+        if self.consistency_mask:
+            valid = non_occluded_by_consistency(flow, back[0].float())[0].contiguous()
         if not features:
-            return TeacherOutput(flow, [], [])
+            return TeacherOutput(flow, [], [], valid)
         both = self.net.features(torch.cat((target, source), dim=0))
         b = target.shape[0]
         feats_tgt = [f[:b].float().contiguous() for f in both]
         feats_src = [f[b:].float().contiguous() for f in both]
-        return TeacherOutput(flow, feats_tgt, feats_src)
+        return TeacherOutput(flow, feats_tgt, feats_src, valid)
 
 
 @dataclass
@@ -119,18 +131,21 @@ class _Entry:
     flow: torch.Tensor
     feats_tgt: list[torch.Tensor]
     feats_src: list[torch.Tensor]
+    valid: torch.Tensor | None
 
     @property
     def nbytes(self) -> int:
-        return sum(t.numel() * t.element_size() for t in (self.flow, *self.feats_tgt, *self.feats_src))
+        mask = () if self.valid is None else (self.valid,)
+        return sum(t.numel() * t.element_size() for t in (self.flow, *self.feats_tgt, *self.feats_src, *mask))
 
 
 def _stack(entries: list[_Entry]) -> TeacherOutput:
     """One batch of memo entries, in order."""
     levels = range(len(entries[0].feats_tgt))
+    valid = None if entries[0].valid is None else torch.stack([e.valid for e in entries])
     return TeacherOutput(torch.stack([e.flow for e in entries]),
                          [torch.stack([e.feats_tgt[k] for e in entries]) for k in levels],
-                         [torch.stack([e.feats_src[k] for e in entries]) for k in levels])
+                         [torch.stack([e.feats_src[k] for e in entries]) for k in levels], valid)
 
 
 def _pair_keys(target: torch.Tensor, source: torch.Tensor, features: bool) -> list[bytes]:

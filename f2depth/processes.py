@@ -1,13 +1,14 @@
-"""The seeds of a CPU training run, each in its own process at a fixed thread count, all at once.
+"""Jobs in their own processes at a fixed thread count, all at once: the seeds of a CPU depth-training run
+(f2depth.train.run) and the ranks of a CPU flow pretraining (f2depth.flow.chairs_ranks).
 
 Why (docs/depth_training.md, "Seeds and threads"): a backward pass on a CPU sums in an order that depends
 on torch's thread count, so a run gives the same weights only at the same count; and a 2-thread step on 2
 cores beside one busy process runs many times slower, because every parallel operation waits for the
-thread the other process displaced. One thread per seed avoids both: a 1-thread seed gives the same bits
-on any machine of the same CPU kind, whatever its core count and whatever else runs, and beside a busy
-process it only shares a core. The seeds fill the cores by running side by side (3 seeds on 2 cores: 1.5
-seeds' time), which more than pays for the second thread each would otherwise use (1.56× on the CPU
-default's step).
+thread the other process displaced. One thread per process avoids both: a 1-thread process gives the same
+bits on any machine of the same CPU kind, whatever its core count and whatever else runs, and beside a
+busy process it only shares a core. The processes fill the cores by running side by side (3 seeds on 2
+cores: 1.5 seeds' time), which more than pays for the second thread each would otherwise use (1.56× on
+the CPU default's depth step).
 
 :func:`run_jobs` runs ``job(*args)`` for each argument tuple in a ``spawn``-started process (a clean
 interpreter: no OpenMP pool inherited from the parent, the same on Linux and macOS) whose torch and OpenCV
@@ -52,9 +53,11 @@ def processes_for(jobs: int, n_threads: int) -> int:
 
 
 def run_jobs(job: Callable[..., Any], args: Sequence[tuple], n_threads: int, total_epochs: int,
-             desc: str, progress: bool = True) -> list[Any]:
+             desc: str, progress: bool = True, concurrent: bool = False) -> list[Any]:
     """``[job(*a) for a in args]``, each call in its own process at ``n_threads`` threads (module
-    docstring). ``job`` must be a module-level function (the processes import it by name)."""
+    docstring). ``job`` must be a module-level function (the processes import it by name).
+    ``concurrent``: every job at once, whatever :func:`processes_for` says (jobs that wait for each other,
+    as the ranks of a data-parallel run)."""
     ctx = multiprocessing.get_context("spawn")
     reports = ctx.Queue()
     bar = tqdm(total=total_epochs, desc=desc, unit="epoch", disable=not progress)
@@ -70,7 +73,8 @@ def run_jobs(job: Callable[..., Any], args: Sequence[tuple], n_threads: int, tot
     reader = threading.Thread(target=follow, daemon=True)
     reader.start()
     try:
-        with ProcessPoolExecutor(processes_for(len(args), n_threads), mp_context=ctx, initializer=_start,
+        workers = len(args) if concurrent else processes_for(len(args), n_threads)
+        with ProcessPoolExecutor(max(workers, 1), mp_context=ctx, initializer=_start,
                                  initargs=(reports, n_threads)) as pool:
             futures = [pool.submit(job, *a) for a in args]
             try:
