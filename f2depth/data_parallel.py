@@ -64,12 +64,7 @@ class Group:
 
     def mean(self, values: dict[str, float]) -> dict[str, float]:
         """The mean over the ranks of each value (every rank passes the same keys)."""
-        if self.world == 1 or not values:
-            return dict(values)
-        keys = sorted(values)
-        t = torch.tensor([values[k] for k in keys], dtype=torch.float64)
-        dist.all_reduce(t, op=dist.ReduceOp.SUM)
-        return {k: float(v) / self.world for k, v in zip(keys, t.tolist())}
+        return mean_over_ranks(values, self.world)
 
     def broadcast(self, module: torch.nn.Module) -> None:
         """Every rank takes rank 0's parameters and buffers (after rank 0 alone changed them)."""
@@ -83,6 +78,18 @@ class Group:
 
 
 SINGLE = Group()
+
+
+def mean_over_ranks(values: dict[str, float], world: int, device: torch.device | str = "cpu"
+                    ) -> dict[str, float]:
+    """The mean over the ``world`` ranks of the default process group of each value (every rank passes the
+    same keys; ``device``: where the reduction runs, a CUDA device under NCCL)."""
+    if world == 1 or not values:
+        return dict(values)
+    keys = sorted(values)
+    t = torch.tensor([values[k] for k in keys], dtype=torch.float64, device=device)
+    dist.all_reduce(t, op=dist.ReduceOp.SUM)
+    return {k: float(v) / world for k, v in zip(keys, t.tolist())}
 
 
 def free_port() -> int:

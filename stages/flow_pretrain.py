@@ -94,14 +94,13 @@ def pretrain_on_chairs(model, stage: PretrainStage, seed: int, train_frames: lis
                        ) -> tuple[dict, tuple]:
     """The chairs route → (training result, held-out generated pairs); on a CPU in `cpu_ranks` processes."""
     cfg = stage.chairs
+    if device == "cpu" and cfg.cpu_ranks:
+        return pretrain_in_ranks(model, cfg, seed, stage.network, train_frames, stage.resume_dir,
+                                 on_epoch=run.log_epoch)
     pool = chairs_pool(cfg, seed, train_frames)
     generated = chairs_route.heldout_pairs(cfg, seed, pool)
-    if device == "cpu" and cfg.cpu_ranks:
-        result = pretrain_in_ranks(model, cfg, seed, stage.network, train_frames, stage.resume_dir,
-                                   on_epoch=run.log_epoch)
-    else:
-        result = chairs_route.pretrain_chairs(model, pool, cfg, seed, stage.network, generated,
-                                              stage.resume_dir, device, on_epoch=run.log_epoch)
+    result = chairs_route.pretrain_chairs(model, pool, cfg, seed, stage.network, generated,
+                                          stage.resume_dir, device, on_epoch=run.log_epoch)
     return result, generated
 
 

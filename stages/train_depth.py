@@ -101,6 +101,12 @@ def main(argv: list[str]) -> None:
                          + (f", held-out δ1 {h0['a1']:.3f} → {h1['a1']:.3f} (constant depth: "
                             f"{floors['constant_a1']:.3f})" if "a1" in h1 else ""))
         parts.append(f"training frames δ1 {fmt(tr0)} → {fmt(tr1)}")
+        if "rigid_epe" in m["train_trained"]:
+            epe = m.get("train_flow_epe", {})
+            parts.append(f"rigid flow EPE {fmt(m['train_untrained'].get('rigid_epe'), 2)} → "
+                         f"{fmt(m['train_trained']['rigid_epe'], 2)} px"
+                         + (f" (the teacher's {fmt(epe['teacher'], 2)}, zero flow {fmt(epe['zero_flow'], 2)})"
+                            if epe else ""))
         print(f"train_depth[{args.variant}]: {'; '.join(parts)}; {m['seconds_per_epoch']:.1f} s/epoch, "
               f"{m['wall_seconds']:.0f} s ({len(settings.seeds)} seed(s)) → {out_dir}")
 

@@ -11,7 +11,8 @@ import torch
 from test_flow_bootstrap import small_config
 
 from f2depth import data_parallel, processes
-from f2depth.flow.chairs_ranks import pretrain_in_ranks
+from f2depth.flow.bootstrap import heldout_pairs
+from f2depth.flow.chairs_ranks import chairs_pool, pretrain_in_ranks
 from f2depth.flow.checkpoint import build_network
 from f2depth.synth.chairs import render_pairs, texture_pool
 
@@ -94,7 +95,8 @@ def _pretrained(threads: int) -> tuple[dict, dict]:
     cfg = small_config(batch_size=4, steps_per_epoch=3, epochs=2, cpu_ranks=2)
     model = build_network("pwclite")
     rows: list[dict] = []
-    result = pretrain_in_ranks(model, cfg, 0, "pwclite", [], None, on_epoch=rows.append)
+    result, heldout = pretrain_in_ranks(model, cfg, 0, "pwclite", [], None, on_epoch=rows.append)
+    assert all(torch.equal(a, b) for a, b in zip(heldout, heldout_pairs(cfg, 0, chairs_pool(cfg, 0, []))))
     assert [r["epoch"] for r in rows] == [1, 2, 3] == [r["epoch"] for r in result["history"]]
     return {k: v.clone() for k, v in model.state_dict().items()}, result
 

@@ -58,3 +58,11 @@ def test_applying_the_cpu_profile_leaves_the_committed_file_byte_for_byte(tmp_pa
     assert "threads: null" in params.read_text()
     assert profile.apply("cpu", params, ROOT / "configs/profiles.yaml") == []
     assert params.read_text() == (ROOT / "params.yaml").read_text()
+
+
+def test_the_cpu_profile_holds_only_what_the_paper_profile_changes():
+    """params.yaml is the CPU default; the `cpu` block is only the way back from `make paper`, so it names
+    no key that `paper` leaves alone (a third copy of a default would drift)."""
+    profiles = profile.load_profiles(ROOT / "configs/profiles.yaml")
+    extra = sorted(set(profiles["cpu"]) - set(profiles["paper"]))
+    assert extra == [], f"configs/profiles.yaml: cpu sets {extra}, which paper never changes; drop them"

@@ -12,6 +12,7 @@ from torch import nn
 
 from f2depth.data.prepared import PreparedSet
 from f2depth.depth import DepthModel, DepthModelConfig
+from f2depth.flow import PWCLite
 from f2depth.geometry import axis_angle_to_matrix, make_transform
 from f2depth.train.diagnostics import (
     DIAGNOSTIC_KEYS,
@@ -21,7 +22,9 @@ from f2depth.train.diagnostics import (
     diagnose,
     pose_errors,
     rotation_angle,
+    teacher_epe,
 )
+from f2depth.train.teacher import FlowTeacher
 from f2depth.train.validate import make_validator
 
 
@@ -104,6 +107,7 @@ def test_diagnose_scores_an_oracle_perfectly_and_restores_train_mode(prepared):
     assert set(d) == set(DIAGNOSTIC_KEYS)
     assert d["train_a1"] == pytest.approx(1.0) and d["train_abs_rel"] == pytest.approx(0.0, abs=1e-6)
     assert d["pose_rot_err"] == pytest.approx(0.0, abs=1e-4) and d["pose_trans_cos"] == pytest.approx(1.0)
+    assert d["rigid_epe"] == pytest.approx(0.0, abs=1e-4)  # depth and translation share the 0.3: flow exact
     assert oracle.calls == [False] and oracle.training
 
 
@@ -124,3 +128,39 @@ def test_constant_depth_metrics_is_the_floor(tmp_path):
     assert floor == pytest.approx(ones)  # median scaling: every constant scores the same
     assert 0.0 < floor["val_a1"] < 1.0 and floor["val_abs_rel"] > 0.0
     v.close()
+
+
+class _FlowOf:
+    """A teacher that serves the rows of a fixed field, batch after batch."""
+
+    def __init__(self, flow: torch.Tensor) -> None:
+        self.field, self.start = flow, 0
+
+    def flow(self, target, source):
+        out = self.field[self.start:self.start + target.shape[0]]
+        self.start += target.shape[0]
+        return out
+
+
+def test_teacher_epe_is_zero_for_the_exact_flow_and_zero_flows_for_zeros(prepared):
+    """The teacher's EPE on the training pairs: the exact rigid flow scores 0, a zero field scores what
+    zero flow scores (the fake camera's 5 cm step moves the pixels), in one batch or in several."""
+    truth = TrainTruth.from_prepared(prepared)
+    exact, valid = truth.exact_flow()
+    assert exact.shape == (4, 2, 64, 64) and valid.shape == (4, 1, 64, 64) and valid.any()
+    perfect = teacher_epe(_FlowOf(exact), truth, batch_size=3)
+    assert perfect["teacher"] == pytest.approx(0.0, abs=1e-6) and perfect["zero_flow"] > 0.5
+    blind = teacher_epe(_FlowOf(torch.zeros_like(exact)), truth, batch_size=4)
+    assert blind["teacher"] == pytest.approx(blind["zero_flow"])
+
+
+def test_a_teachers_flow_for_a_diagnosis_leaves_its_memo_alone(prepared):
+    """FlowTeacher.flow runs the network now and keeps nothing: training is served what it was before."""
+    truth = TrainTruth.from_prepared(prepared)
+    torch.manual_seed(0)
+    teacher = FlowTeacher(PWCLite(), memo_mb=64)
+    flow = teacher.flow(truth.target, truth.next)
+    assert flow.shape == (4, 2, 64, 64) and not teacher.memo
+    assert torch.equal(flow, teacher(truth.target, truth.next, features=False).flow)
+    epe = teacher_epe(teacher, truth, batch_size=2)
+    assert len(teacher.memo) == 4 and epe["teacher"] > 0

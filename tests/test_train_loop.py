@@ -14,6 +14,7 @@ from f2depth import epochs as ckpt
 from f2depth.depth import DepthModel, DepthModelConfig
 from f2depth.epochs import NonFiniteEpochError, history_csv, write_history
 from f2depth.flow import PWCLite
+from f2depth.train import loop as loop_module
 from f2depth.train.data import DataConfig, TupleDataset
 from f2depth.train.diagnostics import DIAGNOSTIC_KEYS
 from f2depth.train.heldout import HELDOUT_KEYS
@@ -208,3 +209,24 @@ def test_state_every_writes_the_resume_state_after_every_nth_and_the_last_epoch(
     assert again.resumed_from == 0 and saved == [None, None, 2, 3]
     with pytest.raises(ValueError, match="state_every"):
         LoopConfig(3, 2, LRSchedule.scaled([1e-4], [1], 3), state_every=0)
+
+
+def test_fit_fades_the_flow_terms_epoch_by_epoch(dataset, tmp_path, monkeypatch):
+    """LoopConfig.flow_fade_epochs reaches every step: with a fade of 2 epochs over 3, the steps of epoch 1
+    train L_rigid at its weight, epoch 2's at half of it and epoch 3's at 0; the other terms keep theirs."""
+    seen: dict[int, set] = {}
+    real = loop_module.train_step
+
+    def recording(model, optimizer, batch, teacher, config, *args, **kwargs):
+        epoch = int(kwargs["context"].split(",")[0].removeprefix("epoch "))
+        seen.setdefault(epoch, set()).add((config.weights["rigid"], config.weights["smooth"]))
+        return real(model, optimizer, batch, teacher, config, *args, **kwargs)
+
+    monkeypatch.setattr(loop_module, "train_step", recording)
+    step = StepConfig({**train_fakes.WEIGHTS, "feature": 0.0, "rigid": 0.4}, min_area=40)
+    cfg = LoopConfig(3, 2, LRSchedule.scaled([1e-4], [1], 3), seed=7, progress=False, flow_fade_epochs=2)
+    torch.manual_seed(0)
+    fit(new_model(), dataset, FlowTeacher(PWCLite()), step, cfg, checkpoint=tmp_path / "f.pt",
+        fingerprint="f")
+    smooth = train_fakes.WEIGHTS["smooth"]
+    assert seen == {1: {(0.4, smooth)}, 2: {(0.2, smooth)}, 3: {(0.0, smooth)}}

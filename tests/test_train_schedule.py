@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from f2depth.train.schedule import LRSchedule, scale_phases
+from f2depth.train.schedule import LRSchedule, flow_weight_factor, scale_phases
+from f2depth.train.step import StepConfig
 
 PAPER_LR = [1e-4, 1e-5, 1e-6]
 PAPER_EPOCHS = [27, 15, 2]
@@ -49,3 +50,17 @@ def test_errors():
         scale_phases([0, 0], 4)
     with pytest.raises(ValueError, match="epoch must be >= 0"):
         LRSchedule.scaled(PAPER_LR, PAPER_EPOCHS, 8).lr(-1)
+
+
+def test_the_flow_terms_fade_linearly_to_zero_and_only_they():
+    """train_depth.flow_fade_epochs: 1 in epoch 1, 1 − (epoch − 1)/N after, 0 from epoch N + 1; null keeps the
+    paper's constant weights. The factor scales L_rigid's and L_feature's weights and nothing else."""
+    assert [flow_weight_factor(e, 4) for e in range(1, 8)] == [1.0, 0.75, 0.5, 0.25, 0.0, 0.0, 0.0]
+    assert [flow_weight_factor(e, None) for e in (1, 30)] == [1.0, 1.0]
+    with pytest.raises(ValueError, match="flow_fade_epochs"):
+        flow_weight_factor(1, 0)
+    cfg = StepConfig({"smooth": 1e-3, "planar": 0.05, "rigid": 0.1, "feature": 0.3}, min_area=10)
+    assert cfg.with_flow_factor(1.0) is cfg
+    half = cfg.with_flow_factor(0.5)
+    assert half.weights == {"smooth": 1e-3, "planar": 0.05, "rigid": 0.05, "feature": 0.15}
+    assert cfg.weights["rigid"] == 0.1 and half.min_area == 10  # the original is left as it was

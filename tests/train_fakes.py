@@ -102,7 +102,8 @@ def write_params(root: Path, prepared: Path, mat: Path, splits: Path, flow: Path
           "seed_threads": None, "val_every": 1, "state_every": 1, "resume_dir": str(root / "ckpt"),
           "amp": False, "init_depth": None,
           "pose_prior": "none", "sync_bn": True, "diagnostic_tuples": 64, "teacher_memo_mb": 64,
-          "teacher": "network", "rigid_mask": "none"}
+          "teacher": "network", "rigid_mask": "none",
+          "flow_fade_epochs": None}
     td.update(train)
     flow_s = str(flow) if flow else None
     params = {

@@ -45,7 +45,7 @@ from f2depth.epochs import fingerprint as hash_settings
 from f2depth.flow.correlation import MAX_DISPLACEMENT, correlation
 from f2depth.flow.evaluation import EPEAccumulator, endpoint_error
 from f2depth.flow.network import FlowNetwork, make_optimizer, msra_init
-from f2depth.precision import autocast, backward_and_step
+from f2depth.precision import autocast
 from f2depth.synth.chairs import ChairsSpec, render_pairs
 
 #: history.csv: what every epoch measures (f2depth.epochs.write_history)
@@ -378,13 +378,7 @@ def pretrain_chairs(model: FlowNetwork, pool: torch.Tensor, cfg: BootstrapConfig
             epe, levels = multiscale_epe([f.float() for f in flows], gt, cfg.w_scales)
             loss, optim = epe + cfg.matching_weight * match, opt_b
             stats["epe"] = levels[0]
-        if group.world > 1:
-            _backward_averaged(loss, optim, group)
-        else:
-            if not torch.isfinite(loss):
-                raise FloatingPointError(f"loss is {loss.item()}")
-            optim.zero_grad(set_to_none=True)
-            backward_and_step(loss, optim)
+        _backward_averaged(loss, optim, group)
         return {"loss": float(loss.detach()), **stats}
 
     def end_epoch(row: dict[str, Any]) -> dict[str, Any]:
@@ -399,8 +393,7 @@ def pretrain_chairs(model: FlowNetwork, pool: torch.Tensor, cfg: BootstrapConfig
 
     t0 = time.perf_counter()
     loop.run_epochs(batches, step, end_epoch=end_epoch, on_epoch=on_epoch,
-                    reduce=group.mean if group.world > 1 else None,
-                    barrier=group.barrier if group.world > 1 else None)
+                    reduce=group.mean, barrier=group.barrier)
     model.eval()
     if not group.main:
         return {"epochs_run": cfg.total_epochs - loop.resumed_from}
@@ -413,15 +406,16 @@ def pretrain_chairs(model: FlowNetwork, pool: torch.Tensor, cfg: BootstrapConfig
 
 
 def _backward_averaged(loss: torch.Tensor, optim: torch.optim.Optimizer, group: Group) -> None:
-    """A data-parallel step: back-propagate this rank's ``loss``, average the gradients over the ranks and
-    step; raises ``FloatingPointError`` on every rank (none steps) when any rank's loss is not finite."""
+    """One step of ``group`` (one process: :data:`SINGLE`): back-propagate this rank's ``loss``, average the
+    gradients over the ranks and step; raises ``FloatingPointError`` on every rank (none steps) when any
+    rank's loss is not finite."""
     finite = bool(torch.isfinite(loss))
     optim.zero_grad(set_to_none=True)
     if finite:
         loss.backward()
     params = [p for g in optim.param_groups for p in g["params"]]
     if not group.average_gradients(params, finite):
-        raise FloatingPointError(f"a rank's loss is not finite (this rank's: {loss.item()})")
+        raise FloatingPointError(f"the loss is not finite on a rank (this one's: {loss.item()})")
     optim.step()
 
 

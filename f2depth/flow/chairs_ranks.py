@@ -30,7 +30,8 @@ def chairs_pool(cfg: BootstrapConfig, seed: int, frames: Sequence[str]) -> torch
 
 def _rank(rank: int, world: int, port: int, cfg: BootstrapConfig, seed: int, network: str,
           frames: Sequence[str], resume_dir: str | None) -> dict[str, Any] | None:
-    """One rank's process → rank 0: ``{"state": its weights, "result": pretrain_chairs' result}``."""
+    """One rank's process → rank 0: ``{"state": its weights, "result": pretrain_chairs' result, "heldout":
+    the held-out generated pairs it scored}``."""
     group = data_parallel.join(rank, world, port)
     try:
         pool = chairs_pool(cfg, seed, frames)
@@ -41,14 +42,16 @@ def _rank(rank: int, world: int, port: int, cfg: BootstrapConfig, seed: int, net
                                  on_epoch=lambda row: processes.epoch_done(), progress=False, group=group)
     finally:
         data_parallel.leave(group)
-    return {"state": model.state_dict(), "result": result} if group.main else None
+    return {"state": model.state_dict(), "result": result, "heldout": test} if group.main else None
 
 
 def pretrain_in_ranks(model: FlowNetwork, cfg: BootstrapConfig, seed: int, network: str,
                       frames: Sequence[str], resume_dir: str | None,
-                      on_epoch: Callable[[dict[str, Any]], None] | None = None) -> dict[str, Any]:
+                      on_epoch: Callable[[dict[str, Any]], None] | None = None
+                      ) -> tuple[dict[str, Any], tuple[torch.Tensor, ...]]:
     """:func:`f2depth.flow.bootstrap.pretrain_chairs` in ``cfg.cpu_ranks`` 1-thread processes (module
-    docstring): ``model`` (built as the ranks build theirs) left holding the result's weights → its result;
+    docstring): ``model`` (built as the ranks build theirs) left holding the result's weights → (its result,
+    the held-out generated pairs of :func:`~f2depth.flow.bootstrap.heldout_pairs` it was scored on);
     ``on_epoch(row)`` for each epoch of the history afterwards."""
     world = cfg.cpu_ranks or 1
     port = data_parallel.free_port()
@@ -56,7 +59,7 @@ def pretrain_in_ranks(model: FlowNetwork, cfg: BootstrapConfig, seed: int, netwo
     done = processes.run_jobs(_rank, jobs, n_threads=1, total_epochs=cfg.total_epochs,
                               desc="flow_pretrain", concurrent=True)[0]
     model.load_state_dict(done["state"])
-    for row in done["result"]["history"]:
-        if on_epoch is not None:
+    if on_epoch is not None:
+        for row in done["result"]["history"]:
             on_epoch(row)
-    return done["result"]
+    return done["result"], done["heldout"]

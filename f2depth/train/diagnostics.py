@@ -10,7 +10,13 @@ epoch also measures, on the training tuples, without augmentation:
 * ``pose_rot_err``: mean angle (degrees) between the predicted and the true rotation of both source
   transforms (``1_T_0`` and ``-1_T_0``); ``pose_rot_true`` / ``pose_rot_pred``: the mean rotation angles;
 * ``pose_trans_cos``: mean cosine between the predicted and the true translation directions (1 = right
-  direction; the scale is free in monocular training).
+  direction; the scale is free in monocular training);
+* ``rigid_epe``: mean end-point error (pixels) of the rigid flow target → +1 that L_rigid compares with the
+  teacher, ``rigid_flow(depth, K, 1_T_0)`` from the predicted depth and pose (their common scale cancels),
+  against the exact rigid flow of the true depth and pose, over the valid ground-truth pixels.
+:func:`teacher_epe` measures the frozen teacher's flow on the same pairs once, beside zero flow's: when
+the network's own rigid flow is already closer to the truth than the teacher's, L_rigid pulls it towards
+the teacher's errors (docs/method.md §9).
 With pose priors (``train_depth.pose_prior: geometric``) the poses measured are those the losses use:
 PoseCNN's residual composed with the prior (PoseCNN alone for pairs without one).
 
@@ -30,14 +36,14 @@ from torch import nn
 from f2depth.data.images import to_tensor
 from f2depth.data.prepared import PreparedSet
 from f2depth.eval.metrics import EmptyMaskError, aggregate, image_metrics
-from f2depth.geometry import MAX_DEPTH, MIN_DEPTH, relative_pose
+from f2depth.geometry import MAX_DEPTH, MIN_DEPTH, relative_pose, rigid_flow
 from f2depth.poses.store import PosePriors
 from f2depth.train.step import pose_priors
 from f2depth.train.validate import evaluating
 
 #: Keys ``diagnose`` returns (history.csv columns and MLflow metrics).
 DIAGNOSTIC_KEYS = ("train_a1", "train_abs_rel", "pose_rot_err", "pose_rot_true", "pose_rot_pred",
-                   "pose_trans_cos")
+                   "pose_trans_cos", "rigid_epe")
 
 
 @dataclass(frozen=True)
@@ -46,8 +52,9 @@ class TrainTruth:
 
     target, prev, next (N,3,H,W) float32 RGB in [0, 1]; depth (N,H,W) float32 metres (0 = invalid);
     T_prev, T_next (N,4,4) float64: the true ``-1_T_0`` and ``1_T_0`` (target camera → source camera);
-    priors: None, or [(prior, ok)] of the pairs ``[I-1, I0]`` and ``[I0, I1]`` as ``step.pose_priors`` gives
-    them: the priors ``0_T_-1``, ``1_T_0`` (N,4,4) float32 that PoseCNN refines and their flags (N,).
+    K (3,3) float64: the intrinsics of every frame; priors: None, or [(prior, ok)] of the pairs
+    ``[I-1, I0]`` and ``[I0, I1]`` as ``step.pose_priors`` gives them: the priors ``0_T_-1``, ``1_T_0``
+    (N,4,4) float32 that PoseCNN refines and their flags (N,).
     """
 
     target: torch.Tensor
@@ -56,10 +63,18 @@ class TrainTruth:
     depth: np.ndarray
     T_prev: torch.Tensor
     T_next: torch.Tensor
+    K: torch.Tensor
     priors: list[tuple[torch.Tensor, torch.Tensor]] | None = None
 
     def __len__(self) -> int:
         return int(self.target.shape[0])
+
+    def exact_flow(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """The exact rigid flow target → +1 (N,2,H,W) pixels, x first, float32, and where the target's
+        ground-truth depth is valid (N,1,H,W) bool."""
+        depth = torch.from_numpy(self.depth)[:, None].double()
+        flow = rigid_flow(depth, self.K.expand(len(self), 3, 3), self.T_next)
+        return flow.float(), depth > 0
 
     @classmethod
     def from_prepared(cls, prepared: PreparedSet, max_tuples: int | None = None,
@@ -87,7 +102,8 @@ class TrainTruth:
             torch.stack([img[t.target] for t in tuples]), torch.stack([img[t.prev] for t in tuples]),
             torch.stack([img[t.next] for t in tuples]), np.stack([gt[t.target][0] for t in tuples]),
             torch.stack([relative_pose(world[t.target], world[t.prev]) for t in tuples]),
-            torch.stack([relative_pose(world[t.target], world[t.next]) for t in tuples]), prior,
+            torch.stack([relative_pose(world[t.target], world[t.next]) for t in tuples]),
+            torch.from_numpy(prepared.K).double(), prior,
         )
 
 
@@ -110,6 +126,23 @@ def pose_errors(T_pred: torch.Tensor, T_true: torch.Tensor) -> dict[str, float]:
         "pose_rot_pred": float(rotation_angle(T_pred[:, :3, :3]).mean()),
         "pose_trans_cos": float(cos.mean()),
     }
+
+
+def flow_epe(flow: torch.Tensor, exact: torch.Tensor, valid: torch.Tensor) -> float:
+    """flow, exact (N,2,H,W) pixels, valid (N,1,H,W) bool → mean end-point error over the valid pixels."""
+    return float((flow.float() - exact).norm(dim=1, keepdim=True)[valid].mean())
+
+
+@torch.no_grad()
+def teacher_epe(teacher, truth: TrainTruth, device: torch.device | str = "cpu",
+                batch_size: int = 8) -> dict[str, float]:
+    """The frozen teacher's flow target → +1 on ``truth``'s pairs against the exact rigid flow →
+    ``{"teacher": EPE, "zero_flow": EPE}`` (pixels). ``teacher``: a ``FlowTeacher`` (its ``flow``)."""
+    exact, valid = truth.exact_flow()
+    flows = [teacher.flow(truth.target[s:s + batch_size].to(device), truth.next[s:s + batch_size].to(device))
+             .cpu() for s in range(0, len(truth), batch_size)]
+    return {"teacher": flow_epe(torch.cat(flows), exact, valid),
+            "zero_flow": flow_epe(torch.zeros_like(exact), exact, valid)}
 
 
 def depth_accuracy(pred: np.ndarray, gt: np.ndarray, min_depth: float = MIN_DEPTH,
@@ -141,8 +174,13 @@ def diagnose(model: nn.Module, truth: TrainTruth, device: torch.device | str = "
             T_prev.append(model.predict_pose(prv, tgt, True, *pp).cpu())
             T_next.append(model.predict_pose(tgt, nxt, False, *pn).cpu())
     cfg = model.config
-    out = depth_accuracy(np.concatenate(depths), truth.depth, cfg.min_depth, cfg.max_depth)
+    depth = np.concatenate(depths)
+    out = depth_accuracy(depth, truth.depth, cfg.min_depth, cfg.max_depth)
     out.update(pose_errors(torch.cat(T_prev + T_next), torch.cat([truth.T_prev, truth.T_next])))
+    exact, valid = truth.exact_flow()
+    rigid = rigid_flow(torch.from_numpy(depth)[:, None].double(), truth.K.expand(len(truth), 3, 3),
+                       torch.cat(T_next).double())
+    out["rigid_epe"] = flow_epe(rigid, exact, valid)
     return out
 
 

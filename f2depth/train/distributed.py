@@ -23,6 +23,7 @@ import torch
 import torch.distributed as dist
 from torch import nn
 
+from f2depth.data_parallel import mean_over_ranks
 from f2depth.losses import NonFiniteLossError
 from f2depth.losses.total import PHOTOMETRIC
 from f2depth.params import resolve_device
@@ -94,13 +95,9 @@ def unwrap(model: nn.Module) -> nn.Module:
 
 def all_reduce_mean(values: dict[str, float], ctx: DistContext) -> dict[str, float]:
     """Mean over ranks of each value (every rank must pass the same keys)."""
-    if not ctx.distributed or not values:
+    if not ctx.distributed:
         return dict(values)
-    keys = sorted(values)
-    t = torch.tensor([values[k] for k in keys], dtype=torch.float64,
-                     device=ctx.device if ctx.device.type == "cuda" else "cpu")
-    dist.all_reduce(t, op=dist.ReduceOp.SUM)
-    return {k: float(v) / ctx.world_size for k, v in zip(keys, t.tolist())}
+    return mean_over_ranks(values, ctx.world_size, ctx.device if ctx.device.type == "cuda" else "cpu")
 
 
 def agree_finite(error: NonFiniteLossError | None, ctx: DistContext) -> None:

@@ -31,7 +31,7 @@ from f2depth.train.data import EpochView, TupleDataset, rank_indices
 from f2depth.train.diagnostics import DIAGNOSTIC_KEYS
 from f2depth.train.distributed import DistContext, agree_finite, all_reduce_mean, barrier, unwrap, wrap_model
 from f2depth.train.heldout import HELDOUT_KEYS
-from f2depth.train.schedule import LRSchedule
+from f2depth.train.schedule import LRSchedule, flow_weight_factor
 from f2depth.train.step import TERMS, StepConfig, batch_to, train_step
 from f2depth.train.teacher import FlowTeacher
 
@@ -56,6 +56,7 @@ class LoopConfig:
     progress: bool = True
     val_every: int = 1  # validate after every N-th epoch (and always before training and after the last)
     state_every: int = 1  # write the resume state after every N-th epoch (and after the last)
+    flow_fade_epochs: int | None = None  # the flow terms' weights fade to 0 over N epochs (None: constant)
 
     def __post_init__(self) -> None:
         if min(self.epochs, self.batch_size, self.val_every, self.state_every) < 1:
@@ -137,7 +138,8 @@ def fit(
 
     def step(item: tuple[int, int, dict[str, torch.Tensor]]) -> dict[str, float]:
         epoch, i, batch = item
-        return train_step(ddp, optimizer, batch_to(batch, ctx.device), teacher, step_config, scaler,
+        weighted = step_config.with_flow_factor(flow_weight_factor(epoch, config.flow_fade_epochs))
+        return train_step(ddp, optimizer, batch_to(batch, ctx.device), teacher, weighted, scaler,
                           context=f"epoch {epoch}, step {i}", agree=lambda error: agree_finite(error, ctx))[1]
 
     def end_epoch(row: dict[str, Any]) -> dict[str, Any]:

@@ -32,7 +32,13 @@ from f2depth.epochs import fingerprints
 from f2depth.poses.store import PosePriors
 from f2depth.superpixels import scaled_min_area
 from f2depth.train.data import DataConfig, TupleDataset, batch_problem
-from f2depth.train.diagnostics import DIAGNOSTIC_KEYS, TrainTruth, constant_depth_metrics, diagnose
+from f2depth.train.diagnostics import (
+    DIAGNOSTIC_KEYS,
+    TrainTruth,
+    constant_depth_metrics,
+    diagnose,
+    teacher_epe,
+)
 from f2depth.train.distributed import DistContext, barrier
 from f2depth.train.exact_teacher import ExactTeacher
 from f2depth.train.heldout import HELDOUT_KEYS, HeldOutValidator
@@ -124,13 +130,16 @@ class _Parts:
     heldout_floors: dict[str, Any] | None
     step_config: StepConfig
     priors: PosePriors | None
+    train_flow_epe: dict[str, float] | None  # diagnostics.teacher_epe on the training tuples
 
     def floors(self) -> dict[str, Any]:
-        """The metrics file's floors: a constant depth on the validation images, the held-out tuples'."""
+        """The metrics file's floors: a constant depth on the validation images, the held-out tuples', and
+        the teacher's and zero flow's EPE on the training tuples with ground truth."""
         constant = {"abs_rel": self.floor.get("val_abs_rel"), "a1": self.floor.get("val_a1")}
         return {"val_constant_depth": constant,
                 **({"heldout": {"tuples": len(self.heldout), **self.heldout_floors}}
-                   if self.heldout is not None else {})}
+                   if self.heldout is not None else {}),
+                **({"train_flow_epe": self.train_flow_epe} if self.train_flow_epe is not None else {})}
 
     def close(self) -> None:
         if self.validator is not None:
@@ -170,7 +179,8 @@ def _parts(s: TrainSettings, ctx: DistContext, measures: bool = True) -> _Parts:
     return _Parts(prepared, dataset, teacher, validator, heldout, truth,
                   constant_depth_metrics(validator) if validator is not None else {},
                   heldout.floors() if heldout is not None else None,
-                  StepConfig(weights=s.weights, min_area=scaled_min_area(h, w), amp=s.amp), priors)
+                  StepConfig(weights=s.weights, min_area=scaled_min_area(h, w), amp=s.amp), priors,
+                  teacher_epe(teacher, truth, ctx.device) if truth and teacher else None)
 
 
 def _train_seed(s: TrainSettings, parts: _Parts, seed: int, build_dir: Path, ctx: DistContext,
@@ -190,7 +200,8 @@ def _train_seed(s: TrainSettings, parts: _Parts, seed: int, build_dir: Path, ctx
     result = fit(
         model, parts.dataset, parts.teacher, parts.step_config,
         LoopConfig(s.epochs, s.batch_size, s.schedule, seed=seed, workers=s.workers, sync_bn=s.sync_bn,
-                   progress=progress, val_every=s.val_every, state_every=s.state_every),
+                   progress=progress, val_every=s.val_every, state_every=s.state_every,
+                   flow_fade_epochs=s.flow_fade_epochs),
         ctx=ctx, checkpoint=state_file, resume=resume, fingerprint=fingerprint,
         validate=_measure(parts.validator, parts.heldout, parts.truth, ctx.device), on_epoch=on_epoch,
     )  # fmt: skip

@@ -12,6 +12,9 @@ different number of epochs the phase boundaries are scaled proportionally and ro
 
 Examples with the paper's phases: 44 → [27, 15, 2]; 8 → [4, 3, 1]; 3 → [1, 1, 1]; 2 → [1, 1, 0].
 The rate is constant within an epoch (set at the start of each epoch, epochs counted from 0).
+
+:func:`flow_weight_factor` is the other schedule of a run: the factor on the flow terms' weights
+(``train_depth.flow_fade_epochs``; docs/method.md §9).
 """
 
 from __future__ import annotations
@@ -42,6 +45,17 @@ def scale_phases(lr_epochs: Sequence[int], epochs: int) -> list[int]:
                 phases[donor] -= 1
                 phases[i] = 1
     return phases
+
+
+def flow_weight_factor(epoch: int, fade_epochs: int | None) -> float:
+    """The factor on the weights of L_rigid and L_feature in epoch ``epoch`` (counted from 1): 1 in every
+    epoch without a fade (``None``, the paper); with a fade of N epochs it falls linearly, 1 − (epoch − 1)/N,
+    from 1 in epoch 1 to 0 from epoch N + 1 on."""
+    if fade_epochs is None:
+        return 1.0
+    if fade_epochs < 1:
+        raise ValueError(f"flow_fade_epochs must be >= 1 or null, got {fade_epochs}")
+    return max(0.0, 1.0 - (epoch - 1) / fade_epochs)
 
 
 @dataclass(frozen=True)

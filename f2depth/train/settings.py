@@ -66,6 +66,7 @@ class TrainSettings:
     teacher_memo_mb: float = field(metadata={"min": 0})  # f2depth.train.teacher: the frozen network's memo
     teacher: str  # network (the paper) | exact (diagnosis: the synthetic world's rigid flow)
     rigid_mask: str  # none (the paper) | consistency: L_rigid where the teacher's two flows agree
+    flow_fade_epochs: int | None = field(metadata={"min": 1})  # f2depth.train.schedule.flow_weight_factor
     resume_dir: str
     # ---- resolved for the variant
     variant: str

@@ -28,7 +28,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from contextlib import nullcontext
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import torch
 from torch import nn
@@ -65,6 +65,14 @@ class StepConfig:
     min_depth: float = MIN_DEPTH
     max_depth: float = MAX_DEPTH
     amp: bool = False  # autocast the networks: float16 on CUDA, bfloat16 on a CPU
+
+    def with_flow_factor(self, factor: float) -> StepConfig:
+        """This config with the weights of the flow terms (:data:`FLOW_TERMS`) times ``factor`` (itself at
+        1)."""
+        if factor == 1.0:
+            return self
+        weights = {t: w * factor if t in FLOW_TERMS else w for t, w in self.weights.items()}
+        return replace(self, weights=weights)
 
 
 @dataclass

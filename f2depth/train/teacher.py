@@ -100,6 +100,13 @@ class FlowTeacher:
             return out
         return _stack([ran[i] if i in ran else self.memo[key] for i, key in enumerate(keys)])
 
+    @torch.no_grad()
+    def flow(self, target: torch.Tensor, source: torch.Tensor) -> torch.Tensor:
+        """target, source (B,3,H,W) RGB in [0, 1] → the flow target → source (B,2,H,W) pixels, x first,
+        computed now: the memo is neither read nor filled (a diagnosis must not change what training is
+        served)."""
+        return self._run(target, source, features=False).flow
+
     def _keep(self, key: bytes, entry: _Entry) -> None:
         """Memoise a copy of ``entry`` (views of a batch) when the budget has room and the key is new."""
         if key not in self.memo and self.memo_used + entry.nbytes <= self.memo_bytes:
