@@ -269,7 +269,8 @@ def ddp_worker(args: argparse.Namespace) -> None:
 
         weights = loss_weights(P.load(args.params))  # full's: every term on
         fit(model, ds, FlowTeacher(PWCLite(), ctx.device), StepConfig(weights, scaled_min_area(*hw)),
-            LoopConfig(1, args.depth_batch, LRSchedule.scaled((1e-4,), (1,), 1), progress=False),
+            LoopConfig(1, args.depth_batch, LRSchedule.scaled((1e-4,), (1,), 1), workers=0, sync_bn=True,
+                       val_every=1, state_every=1, flow_fade_epochs=None, progress=False),
             ctx=ctx, on_epoch=on_epoch)
     total = captured.get("total", math.nan)
     print(json.dumps({"backend": dist.get_backend() if dist.is_initialized() else None,

@@ -156,8 +156,16 @@ def build_parser() -> argparse.ArgumentParser:
     about = "F2Depth: self-supervised indoor monocular depth. Use a trained model."
     parser = OneLineParser(prog="f2depth", description=about, epilog=EXIT_NOTE)
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    fmt = argparse.RawDescriptionHelpFormatter
+    _add_predict(sub)
+    _add_ingest(sub)
+    _add_export(sub)
+    _add_reconstruct(sub)
+    return parser
 
+
+def _add_predict(sub: argparse._SubParsersAction) -> None:
+    """The `predict` command: depth maps of an image, a folder or a video."""
+    fmt = argparse.RawDescriptionHelpFormatter
     p = sub.add_parser("predict", formatter_class=fmt, help="depth maps of an image, a folder or a video",
                        description=PREDICT_DESCRIPTION + "\n\n" + RELATIVE_NOTE, epilog=PREDICT_EPILOG)
     _add_threads(p)
@@ -181,6 +189,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="resizing of the disparity back to the input size (default bilinear)")
     p.set_defaults(func=_cmd_predict)
 
+
+def _add_ingest(sub: argparse._SubParsersAction) -> None:
+    """The `ingest` command: videos and image folders → a raw frame folder."""
+    fmt = argparse.RawDescriptionHelpFormatter
     p = sub.add_parser("ingest", formatter_class=fmt,
                        help="your videos / image folders → a raw frame folder to train on (docs/ingest.md)",
                        description="Each video or image folder becomes one scene of OUT (NYU-raw layout, "
@@ -208,6 +220,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_ingest)
 
+
+def _add_export(sub: argparse._SubParsersAction) -> None:
+    """The `export` command: the depth network as ONNX."""
+    fmt = argparse.RawDescriptionHelpFormatter
     p = sub.add_parser("export", formatter_class=fmt, help="export the depth network (ONNX)",
                        description=EXPORT_DESCRIPTION, epilog=EXIT_NOTE)
     _add_threads(p)
@@ -223,6 +239,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"ONNX opset, {MIN_OPSET}..{MAX_OPSET} (default {DEFAULT_OPSET})")
     p.set_defaults(func=_cmd_export)
 
+
+def _add_reconstruct(sub: argparse._SubParsersAction) -> None:
+    """The `reconstruct` command: TSDF fusion of a posed sequence."""
+    fmt = argparse.RawDescriptionHelpFormatter
     p = sub.add_parser("reconstruct", formatter_class=fmt, help="TSDF fusion of a posed sequence → mesh",
                        description=RECONSTRUCT_DESCRIPTION, epilog=EXIT_NOTE)
     _add_threads(p)
@@ -255,8 +275,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--reference-mesh", type=Path, metavar="MESH", help="also write the reference mesh")
     p.add_argument("--metrics", type=Path, metavar="FILE", help="write the summary and metrics as JSON")
     p.set_defaults(func=_cmd_reconstruct)
-    return parser
-
 
 def _out(text: str) -> None:
     sys.stdout.write(text + "\n")

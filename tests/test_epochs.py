@@ -147,7 +147,7 @@ def run_depth(tmp: Path, calls, monkeypatch) -> dict:
     net = PWCLite()
     nan_on(net, calls)
     seed_everything(7)
-    config = LoopConfig(1, 2, LRSchedule.scaled([1e-4], [1], 1), seed=7, progress=False)
+    config = LoopConfig(1, 2, LRSchedule.scaled([1e-4], [1], 1), seed=7, progress=False, **train_fakes.LOOP)
     step = StepConfig(train_fakes.WEIGHTS, 40)
     return fit(DepthModel(DepthModelConfig(64, 64)), data, FlowTeacher(net), step,
                config, checkpoint=tmp / "resume.pt", fingerprint="x").history[-1]

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import pytest
 import torch
+from test_flow_patch_loss import patch_cfg
 
 from f2depth.flow.augment import (
     AugmentConfig,
@@ -12,7 +13,7 @@ from f2depth.flow.augment import (
     flip_and_swap,
     hflip_keypoints,
 )
-from f2depth.flow.patch_loss import FinetuneLossConfig, finetune_loss, pad_keypoints
+from f2depth.flow.patch_loss import finetune_loss, pad_keypoints
 from f2depth.geometry import warp
 
 
@@ -64,7 +65,7 @@ def test_flip_keeps_the_loss_of_a_consistent_pair():
     flow[:, 0, :, 10:] = 2.5
     img1 = warp(img2, flow)
     kp, mask = pad_keypoints([torch.tensor([[5, 5], [14, 9], [20, 12]])])
-    cfg = FinetuneLossConfig()
+    cfg = patch_cfg()
     loss, _ = finetune_loss(flow, -flow, img1, img2, kp, mask, cfg)
     fflow = hflip_flow(flow)
     assert torch.equal(fflow[0, 0, :, w - 1], -flow[0, 0, :, 0])

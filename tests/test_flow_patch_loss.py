@@ -22,6 +22,15 @@ from f2depth.flow.patch_loss import (
 )
 from f2depth.geometry import patch_offsets, warp
 
+#: the paper's equation as written: the finest forward flow, N = 2, λ = 50, the forward–backward check
+PAPER_EQUATION = {"spacing": 2, "w_scales": (1.0,), "backward": False, "smooth_weight": 50.0,
+                  "occlusion": "forward_backward"}
+
+
+def patch_cfg(**changes) -> FinetuneLossConfig:
+    """The patch loss's settings: the paper's equation with ``changes``."""
+    return FinetuneLossConfig(**{**PAPER_EQUATION, **changes})
+
 H, W = 40, 56
 
 
@@ -50,7 +59,7 @@ def grid_keypoints(b: int = 1, step: int = 9) -> tuple[torch.Tensor, torch.Tenso
 
 
 def loss_of(flow, img1, img2, kp=None, mask=None, **cfg):
-    return finetune_loss(flow, -flow, img1, img2, kp, mask, FinetuneLossConfig(**cfg))
+    return finetune_loss(flow, -flow, img1, img2, kp, mask, patch_cfg(**cfg))
 
 
 def pyramid(flow: torch.Tensor, levels: int = 5) -> list[torch.Tensor]:
@@ -121,7 +130,7 @@ def test_true_flow_beats_perturbed(way):
     gen = torch.Generator().manual_seed(0)
 
     def loss(f):
-        return finetune_loss(pyramid(f), pyramid(-f), img1, img2, kp, mask, FinetuneLossConfig(**way))
+        return finetune_loss(pyramid(f), pyramid(-f), img1, img2, kp, mask, patch_cfg(**way))
 
     loss_true, st_true = loss(flow)
     # i.i.d. noise on the flow averages out in the coarser levels, so it costs less there than a shift
@@ -138,7 +147,7 @@ def test_gradient_only_at_patch_indices():
     flow = (smooth_flow(2) + 0.3 * torch.randn(2, 2, H, W, generator=torch.Generator().manual_seed(1)))
     flow.requires_grad_(True)
     kp, mask = pad_keypoints([torch.tensor([[10, 10], [30, 20], [50, 33]]), torch.tensor([[25, 25]])])
-    loss, _ = finetune_loss(flow, -flow.detach(), img1, img2, kp, mask, FinetuneLossConfig(smooth_weight=0.0))
+    loss, _ = finetune_loss(flow, -flow.detach(), img1, img2, kp, mask, patch_cfg(smooth_weight=0.0))
     loss.backward()
     touched = flow.grad.abs().sum(1) > 0                                    # (B,H,W)
     in_patch = torch.zeros(2, H * W, dtype=torch.bool)
@@ -156,7 +165,7 @@ def test_zero_keypoints_contribute_nothing_and_never_nan():
     flow = smooth_flow(2).requires_grad_(True)
     pts = torch.tensor([[12, 12], [30, 20]])
     kp, mask = pad_keypoints([torch.zeros(0, 2, dtype=torch.int64), pts])
-    cfg = FinetuneLossConfig(smooth_weight=0.0)
+    cfg = patch_cfg(smooth_weight=0.0)
     loss, stats = finetune_loss(flow, -flow.detach(), img1, img2, kp, mask, cfg)
     loss.backward()
     assert flow.grad[0].abs().sum() == 0 and flow.grad[1].abs().sum() > 0
@@ -166,7 +175,7 @@ def test_zero_keypoints_contribute_nothing_and_never_nan():
     # no keypoints anywhere: photometric term exactly 0, finite loss and gradients
     kp0, mask0 = pad_keypoints([torch.zeros(0, 2), torch.zeros(0, 2)])
     flow.grad = None
-    loss, stats = finetune_loss(flow, -flow.detach(), img1, img2, kp0, mask0)
+    loss, stats = finetune_loss(flow, -flow.detach(), img1, img2, kp0, mask0, patch_cfg())
     loss.backward()
     assert stats["photometric"] == 0.0 and stats["pixels"] == 0 and math.isfinite(stats["loss"])
     assert torch.isfinite(flow.grad).all()
@@ -180,7 +189,7 @@ def test_all_occluded_is_finite(way):
     kp, mask = both_frames(kp, mask, kp, mask)
     # backward flow pointing the same way: the forward–backward check fails everywhere
     fw = [flow] + [f.detach() for f in pyramid(flow.detach())[1:]]
-    loss, stats = finetune_loss(fw, pyramid(flow.detach()), img1, img2, kp, mask, FinetuneLossConfig(**way))
+    loss, stats = finetune_loss(fw, pyramid(flow.detach()), img1, img2, kp, mask, patch_cfg(**way))
     loss.backward()
     assert stats["noc_fraction"] == 0.0 and stats["used_pixels"] == 0 and stats["photometric"] == 0.0
     assert torch.isfinite(loss) and torch.isfinite(flow.grad).all()
@@ -192,8 +201,8 @@ def test_range_map_keeps_a_degenerate_flow_usable():
     img1, img2 = texture(14), texture(15)
     flow = torch.ones(1, 2, H, W)
     kp, mask = grid_keypoints()
-    _, fb = finetune_loss(flow, flow, img1, img2, kp, mask)
-    _, rm = finetune_loss(flow, flow, img1, img2, kp, mask, FinetuneLossConfig(occlusion="range_map"))
+    _, fb = finetune_loss(flow, flow, img1, img2, kp, mask, patch_cfg())
+    _, rm = finetune_loss(flow, flow, img1, img2, kp, mask, patch_cfg(occlusion="range_map"))
     assert fb["used_pixels"] == 0 and fb["photometric"] == 0
     assert rm["used_pixels"] > 0.9 * rm["pixels"] and rm["photometric"] > 0
 
@@ -212,15 +221,15 @@ def test_patch_loss_is_the_mean_over_the_union():
 
 def test_bad_config_and_missing_inputs():
     with pytest.raises(ValueError, match="occlusion must be one of"):
-        FinetuneLossConfig(occlusion="none")
+        patch_cfg(occlusion="none")
     with pytest.raises(ValueError, match="w_scales"):
-        FinetuneLossConfig(w_scales=(0.0, 0.0))
+        patch_cfg(w_scales=(0.0, 0.0))
     img = texture(0)
     kp, mask = grid_keypoints()
     with pytest.raises(ValueError, match="needs the keypoints of frame 2"):
-        finetune_loss(smooth_flow(), -smooth_flow(), img, img, kp, mask, FinetuneLossConfig(backward=True))
+        finetune_loss(smooth_flow(), -smooth_flow(), img, img, kp, mask, patch_cfg(backward=True))
     with pytest.raises(ValueError, match="only 1 flow level"):
-        finetune_loss(smooth_flow(), -smooth_flow(), img, img, kp, mask, FinetuneLossConfig(w_scales=(1, 1)))
+        finetune_loss(smooth_flow(), -smooth_flow(), img, img, kp, mask, patch_cfg(w_scales=(1, 1)))
 
 
 def test_one_scale_forward_reproduces_the_previous_value():
@@ -237,7 +246,7 @@ def test_one_scale_forward_reproduces_the_previous_value():
     before = {"forward_backward": (0.5898089711680621, 0.45943007295120797, 18.5),
               "range_map": (0.6056611619937823, 0.4752822637769282, 25.0)}
     for occlusion, (total, photometric, used) in before.items():
-        cfg = FinetuneLossConfig(w_scales=(1.0,), backward=False, occlusion=occlusion)
+        cfg = patch_cfg(w_scales=(1.0,), backward=False, occlusion=occlusion)
         loss, stats = finetune_loss(fw, bw, img1, img2, kp, mask, cfg)
         assert float(loss) == pytest.approx(total, abs=1e-12)
         assert stats["photometric"] == pytest.approx(photometric, abs=1e-12)
@@ -245,7 +254,7 @@ def test_one_scale_forward_reproduces_the_previous_value():
         assert stats["used_pixels"] == used and stats["pixels"] == 25.5
         # the same through the five-level path with the coarser levels weighted 0
         five, _ = finetune_loss(pyramid(fw), pyramid(bw), img1, img2, kp, mask,
-                                FinetuneLossConfig(w_scales=(1.0, 0.0, 0.0, 0.0, 0.0), occlusion=occlusion))
+                                patch_cfg(w_scales=(1.0, 0.0, 0.0, 0.0, 0.0), occlusion=occlusion))
         assert float(five) == float(loss)
 
 
@@ -289,7 +298,7 @@ def test_arflow_way_is_the_weighted_mean_over_scales_and_directions():
     pts1, pts2 = torch.tensor([[10, 10], [21, 15], [40, 30]]), torch.tensor([[30, 8], [45, 20], [12, 31]])
     kp, mask = both_frames(*pad_keypoints([pts1]), *pad_keypoints([pts2]))
     weights = (1.0, 0.5, 1.0, 0.25, 0.0)
-    cfg = FinetuneLossConfig(w_scales=weights, backward=True, smooth_weight=50.0)
+    cfg = patch_cfg(w_scales=weights, backward=True, smooth_weight=50.0)
     loss, stats = finetune_loss(fw, bw, img1, img2, kp, mask, cfg)
     noc1, noc2 = non_occluded_by_consistency(fw[0], bw[0])
     expect = 0.0
@@ -327,7 +336,7 @@ def test_coarse_flows_are_read_in_pixels_of_their_level():
     img1 = warp(img2, flow)
     kp, mask = grid_keypoints(1, step=6)
     kp, mask = both_frames(kp, mask, kp, mask)
-    cfg = FinetuneLossConfig(w_scales=(0.0, 1.0, 1.0), backward=False)
+    cfg = patch_cfg(w_scales=(0.0, 1.0, 1.0), backward=False)
     true = pyramid(flow, 3)
     unscaled = [true[0]] + [f * 2**i for i, f in enumerate(true) if i > 0]
     _, good = finetune_loss(true, pyramid(-flow, 3), img1, img2, kp, mask, cfg)
@@ -345,7 +354,7 @@ def test_backward_term_uses_the_source_keypoints_at_every_level():
     kp1, m1 = pad_keypoints([pts1])
     kp2, m2 = pad_keypoints([pts2])
     kp, mask = both_frames(kp1, m1, kp2, m2)
-    cfg = FinetuneLossConfig(w_scales=(1.0, 1.0), backward=True, smooth_weight=0.0, occlusion="range_map")
+    cfg = patch_cfg(w_scales=(1.0, 1.0), backward=True, smooth_weight=0.0, occlusion="range_map")
     loss, _ = finetune_loss(fw, bw, img1, img2, kp, mask, cfg)
     loss.backward()
     for flows, (k, m) in ((fw, (kp1, m1)), (bw, (kp2, m2))):
@@ -359,7 +368,7 @@ def test_backward_term_uses_the_source_keypoints_at_every_level():
     # swapping the frames' keypoints changes the loss only through the backward term
     swapped, _ = finetune_loss(fw, bw, img1, img2, kp.flip(1), mask.flip(1), cfg)
     assert float(swapped.detach()) != pytest.approx(float(loss.detach()), rel=1e-4)
-    one_way = FinetuneLossConfig(w_scales=(1.0, 1.0), smooth_weight=0.0, occlusion="range_map")
+    one_way = patch_cfg(w_scales=(1.0, 1.0), smooth_weight=0.0, occlusion="range_map")
     a, _ = finetune_loss(fw, bw, img1, img2, kp, mask, one_way)
     b, _ = finetune_loss(fw, bw, img1, img2, kp2.new_zeros(1, 2, 2, 2) + kp[:, :1], mask, one_way)
     assert float(a.detach()) == float(b.detach())

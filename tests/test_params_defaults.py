@@ -14,6 +14,7 @@ import pytest
 from f2depth import params as P
 from f2depth.ingest.run import IngestConfig
 from f2depth.synth.config import SynthConfig
+from f2depth.train.run import loop_config
 from f2depth.train.settings import settings_from_params
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -61,7 +62,9 @@ def built_configs(p: dict) -> list[tuple[Any, dict | None, str]]:
             out.append((cfg, P.get(p, name), f"{name}: {type(cfg).__name__}"))
     out.append((SynthConfig.from_params(p["synth"]), None, "synth: SynthConfig"))
     for variant in p["variants"]:
-        out.append((settings_from_params(p, variant), P.get(p, "train_depth"), f"train_depth@{variant}"))
+        settings, section = settings_from_params(p, variant), P.get(p, "train_depth")
+        out.append((settings, section, f"train_depth@{variant}"))
+        out.append((loop_config(settings, 0, True), section, f"train_depth@{variant}: LoopConfig"))
     out.append((P.section(p, "ingest", IngestConfig), P.get(p, "ingest"), "ingest: IngestConfig"))
     return out
 

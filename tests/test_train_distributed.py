@@ -39,7 +39,8 @@ def _train(root: str, ctx: DistContext):
     teacher = FlowTeacher(PWCLite())
     seed_everything(SEED)
     model = DepthModel(DepthModelConfig(64, 64))
-    config = LoopConfig(1, 4, LRSchedule.scaled([1e-4], [1], 1), seed=SEED, progress=False)
+    config = LoopConfig(1, 4, LRSchedule.scaled([1e-4], [1], 1), seed=SEED, progress=False,
+                        **train_fakes.LOOP)
     result = fit(model, ds, teacher, StepConfig(WEIGHTS, min_area=40), config, ctx=ctx)
     return model, result
 

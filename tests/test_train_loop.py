@@ -32,7 +32,7 @@ from f2depth.train.teacher import FlowTeacher
 
 EPOCHS = 2
 CONFIG = LoopConfig(EPOCHS, 2, LRSchedule.scaled([1e-4, 1e-5, 1e-6], [27, 15, 2], EPOCHS), seed=7,
-                    progress=False)
+                    progress=False, **train_fakes.LOOP)
 STEP = StepConfig({**train_fakes.WEIGHTS, "feature": 0.0, "rigid": 0.0}, min_area=40)
 
 
@@ -90,7 +90,7 @@ def test_resumed_run_ends_with_the_same_weights(dataset, tmp_path):
 
 
 def test_other_fingerprint_starts_afresh(dataset, tmp_path):
-    cfg = LoopConfig(1, 2, LRSchedule.scaled([1e-4], [1], 1), seed=7, progress=False)
+    cfg = LoopConfig(1, 2, LRSchedule.scaled([1e-4], [1], 1), seed=7, progress=False, **train_fakes.LOOP)
     fit(new_model(), dataset, None, STEP, cfg, checkpoint=tmp_path / "s.pt", fingerprint="one")
     again = fit(new_model(), dataset, None, STEP, cfg, checkpoint=tmp_path / "s.pt", fingerprint="one")
     assert again.resumed_from == 1 and len(again.history) == 1  # finished: nothing left to train
@@ -108,7 +108,8 @@ def test_val_every_measures_before_training_every_nth_epoch_and_after_the_last(d
         calls.append(model)
         return fake_validate(model)
 
-    cfg = LoopConfig(5, 2, LRSchedule.scaled([1e-4], [1], 5), seed=7, progress=False, val_every=2)
+    cfg = LoopConfig(5, 2, LRSchedule.scaled([1e-4], [1], 5), seed=7, progress=False,
+                     **{**train_fakes.LOOP, "val_every": 2})
     assert [cfg.validates_after(e) for e in range(6)] == [True, False, True, False, True, True]
     result = fit(new_model(), dataset, None, STEP, cfg, checkpoint=tmp_path / "v.pt", fingerprint="v",
                  validate=counting_validate)
@@ -117,7 +118,7 @@ def test_val_every_measures_before_training_every_nth_epoch_and_after_the_last(d
     assert [r["epoch"] for r in result.history] == [0, 1, 2, 3, 4, 5]  # every epoch keeps its loss row
     assert all("total" in r for r in result.history[1:])
     with pytest.raises(ValueError, match="val_every"):
-        LoopConfig(5, 2, LRSchedule.scaled([1e-4], [1], 5), val_every=0)
+        LoopConfig(5, 2, LRSchedule.scaled([1e-4], [1], 5), **{**train_fakes.LOOP, "val_every": 0})
 
 
 def test_all_non_finite_epoch_stops_the_loop_naming_the_term(dataset, tmp_path):
@@ -152,7 +153,8 @@ def test_history_files_hold_the_measured_rows_with_every_plotted_column_full(dat
         return {**fake_validate(model), **dict.fromkeys(HELDOUT_KEYS, 0.1),
                 **dict.fromkeys(DIAGNOSTIC_KEYS, 0.2)}
 
-    cfg = LoopConfig(3, 2, LRSchedule.scaled([1e-4], [1], 3), seed=7, progress=False, val_every=2)
+    cfg = LoopConfig(3, 2, LRSchedule.scaled([1e-4], [1], 3), seed=7, progress=False,
+                     **{**train_fakes.LOOP, "val_every": 2})
     result = fit(new_model(), dataset, None, STEP, cfg, checkpoint=tmp_path / "h.pt", fingerprint="h",
                  validate=full_validate)
     files = {}
@@ -190,7 +192,8 @@ def test_fingerprint_covers_settings_and_files(tmp_path):
 
 def test_state_every_writes_the_resume_state_after_every_nth_and_the_last_epoch(dataset, tmp_path):
     torch.set_num_threads(1)
-    cfg = LoopConfig(3, 2, LRSchedule.scaled([1e-4], [1], 3), seed=7, progress=False, state_every=2)
+    cfg = LoopConfig(3, 2, LRSchedule.scaled([1e-4], [1], 3), seed=7, progress=False,
+                     **{**train_fakes.LOOP, "state_every": 2})
     state_file = tmp_path / "every.pt"
     saved = []
 
@@ -208,7 +211,7 @@ def test_state_every_writes_the_resume_state_after_every_nth_and_the_last_epoch(
                 on_epoch=note_state)
     assert again.resumed_from == 0 and saved == [None, None, 2, 3]
     with pytest.raises(ValueError, match="state_every"):
-        LoopConfig(3, 2, LRSchedule.scaled([1e-4], [1], 3), state_every=0)
+        LoopConfig(3, 2, LRSchedule.scaled([1e-4], [1], 3), **{**train_fakes.LOOP, "state_every": 0})
 
 
 def test_fit_fades_the_flow_terms_epoch_by_epoch(dataset, tmp_path, monkeypatch):
@@ -224,7 +227,8 @@ def test_fit_fades_the_flow_terms_epoch_by_epoch(dataset, tmp_path, monkeypatch)
 
     monkeypatch.setattr(loop_module, "train_step", recording)
     step = StepConfig({**train_fakes.WEIGHTS, "feature": 0.0, "rigid": 0.4}, min_area=40)
-    cfg = LoopConfig(3, 2, LRSchedule.scaled([1e-4], [1], 3), seed=7, progress=False, flow_fade_epochs=2)
+    cfg = LoopConfig(3, 2, LRSchedule.scaled([1e-4], [1], 3), seed=7, progress=False,
+                     **{**train_fakes.LOOP, "flow_fade_epochs": 2})
     torch.manual_seed(0)
     fit(new_model(), dataset, FlowTeacher(PWCLite()), step, cfg, checkpoint=tmp_path / "f.pt",
         fingerprint="f")

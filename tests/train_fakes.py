@@ -28,6 +28,10 @@ HW = (64, 64)
 WEIGHTS = loss_weights(load_params(Path(__file__).resolve().parents[1] / "params.yaml"))
 
 
+#: what LoopConfig takes from params.yaml, at the tests' values (every epoch validated and saved, no fade)
+LOOP = {"workers": 0, "sync_bn": True, "val_every": 1, "state_every": 1, "flow_fade_epochs": None}
+
+
 def tiny_K(hw: tuple[int, int] = HW) -> np.ndarray:
     h, w = hw
     return np.array([[0.8 * w, 0.0, 0.45 * w], [0.0, 0.8 * w, 0.55 * h], [0.0, 0.0, 1.0]])

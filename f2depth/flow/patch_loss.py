@@ -72,15 +72,17 @@ CENSUS_BORDER = 1
 
 @dataclass(frozen=True)
 class FinetuneLossConfig:
-    """Settings of the patch loss. Defaults = the paper's equation as written (finest forward flow only);
-    ARFlow's way of computing it is ``w_scales=(1, 1, 1, 1, 0), backward=True`` (params.yaml)."""
+    """Settings of the patch loss. The first five come from params.yaml (``flow_finetune.patch_spacing``,
+    ``w_scales``, ``backward``, ``occlusion``, ``lambda_flow_smooth``; ``FinetuneConfig.patch_loss_config``).
+    The paper's equation as written is ``w_scales=(1.0,), backward=False`` (the finest forward flow only),
+    ARFlow's way of computing it ``w_scales=(1, 1, 1, 1, 0), backward=True``. The rest: ARFlow's constants."""
 
-    spacing: int = 2                  # N
-    w_scales: tuple[float, ...] = (1.0,)  # photometric weight per flow level, finest first; missing = 0
-    backward: bool = False            # also the backward term (ARFlow's with_bk), averaged with the forward
-    smooth_weight: float = 50.0       # λ = params.yaml lambda_flow_smooth
+    spacing: int                      # N
+    w_scales: tuple[float, ...]       # photometric weight per flow level, finest first; missing = 0
+    backward: bool                    # also the backward term (ARFlow's with_bk), averaged with the forward
+    smooth_weight: float              # λ = params.yaml lambda_flow_smooth
+    occlusion: str                    # forward_backward (the paper's, ARFlow's) | range_map (warm-up)
     alpha: float = 10.0               # edge-awareness of the smoothness weights (ARFlow)
-    occlusion: str = "forward_backward"  # or "range_map" (ARFlow's warm-up check)
     fb_scale: float = 0.01            # forward–backward occlusion check (ARFlow)
     fb_bias: float = 0.5
     range_threshold: float = 0.2      # range map: occluded where the splatted count is below this
@@ -206,7 +208,7 @@ def _levels(flows: torch.Tensor | Sequence[torch.Tensor]) -> list[torch.Tensor]:
 def finetune_loss(flows_fw: torch.Tensor | Sequence[torch.Tensor],
                   flows_bw: torch.Tensor | Sequence[torch.Tensor], img1: torch.Tensor, img2: torch.Tensor,
                   keypoints: torch.Tensor, keypoint_mask: torch.Tensor,
-                  cfg: FinetuneLossConfig = FinetuneLossConfig()) -> tuple[torch.Tensor, dict[str, float]]:
+                  cfg: FinetuneLossConfig) -> tuple[torch.Tensor, dict[str, float]]:
     """L_flow with the patch loss (see the module docstring).
 
     ``flows_fw`` frame 1 → 2 and ``flows_bw`` frame 2 → 1: lists of ``(B,2,h_i,w_i)`` flows, finest first,

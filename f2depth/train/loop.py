@@ -50,13 +50,14 @@ class LoopConfig:
     epochs: int
     batch_size: int  # global batch: per-rank batch = batch_size / world size
     schedule: LRSchedule
+    # the train_depth keys of the same names (f2depth.train.run.loop_config; params.yaml is their one default)
+    workers: int
+    sync_bn: bool
+    val_every: int  # validate after every N-th epoch (and always before training and after the last)
+    state_every: int  # write the resume state after every N-th epoch (and after the last)
+    flow_fade_epochs: int | None  # the flow terms' weights fade to 0 over N epochs (None: constant)
     seed: int = 0
-    workers: int = 0
-    sync_bn: bool = True
     progress: bool = True
-    val_every: int = 1  # validate after every N-th epoch (and always before training and after the last)
-    state_every: int = 1  # write the resume state after every N-th epoch (and after the last)
-    flow_fade_epochs: int | None = None  # the flow terms' weights fade to 0 over N epochs (None: constant)
 
     def __post_init__(self) -> None:
         if min(self.epochs, self.batch_size, self.val_every, self.state_every) < 1:

@@ -199,9 +199,7 @@ def _train_seed(s: TrainSettings, parts: _Parts, seed: int, build_dir: Path, ctx
         model.set_initial_depth(s.init_depth)
     result = fit(
         model, parts.dataset, parts.teacher, parts.step_config,
-        LoopConfig(s.epochs, s.batch_size, s.schedule, seed=seed, workers=s.workers, sync_bn=s.sync_bn,
-                   progress=progress, val_every=s.val_every, state_every=s.state_every,
-                   flow_fade_epochs=s.flow_fade_epochs),
+        loop_config(s, seed, progress),
         ctx=ctx, checkpoint=state_file, resume=resume, fingerprint=fingerprint,
         validate=_measure(parts.validator, parts.heldout, parts.truth, ctx.device), on_epoch=on_epoch,
     )  # fmt: skip
@@ -211,6 +209,13 @@ def _train_seed(s: TrainSettings, parts: _Parts, seed: int, build_dir: Path, ctx
         save_checkpoint(build_dir / f"seed{seed}.pt", model, params=s.as_dict(), variant=s.variant, seed=seed,
                         history=result.history, weight_keys=dict(WEIGHT_KEYS))  # each term's params key
     return {"seed": seed, **_summary(result)}, result.history
+
+
+def loop_config(s: TrainSettings, seed: int, progress: bool) -> LoopConfig:
+    """The training loop's settings of one seed of ``s``."""
+    return LoopConfig(s.epochs, s.batch_size, s.schedule, workers=s.workers, sync_bn=s.sync_bn,
+                      val_every=s.val_every, state_every=s.state_every, flow_fade_epochs=s.flow_fade_epochs,
+                      seed=seed, progress=progress)
 
 
 def _count_epoch(row: dict[str, Any]) -> None:
