@@ -305,13 +305,15 @@ def test_the_tables_run_logs_every_interval_and_gap_to_mlflow(tmp_path, monkeypa
 
 
 def test_repository_params_declare_the_gaps_of_tables_5_and_6():
+    """Table 5's three gaps, Table 6's two against `full`, and each Table 6 teacher against `baseline`."""
     p = P.load(ROOT / "params.yaml")
     spec = importlib.util.spec_from_file_location("tables_stage_params", ROOT / "stages" / "tables.py")
     stage = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(stage)
     cfg = stage.config_from_params(p, list(p["variants"]))
     assert cfg.gaps == (("full", "no_feature"), ("full", "baseline"), ("no_feature", "baseline"),
-                        ("full", "flow_pretrained"), ("full", "flow_full_ft"))
+                        ("full", "flow_pretrained"), ("full", "flow_full_ft"),
+                        ("flow_pretrained", "baseline"), ("flow_full_ft", "baseline"))
     assert (cfg.bootstrap, cfg.confidence, cfg.bootstrap_seed) == (2000, 0.95, 0)
     dvc = yaml.safe_load((ROOT / "dvc.yaml").read_text())["stages"]["tables"]
     assert "tables" in dvc["params"] and "f2depth/report/intervals.py" in dvc["deps"]
