@@ -152,6 +152,10 @@ def _add_threads(p: argparse.ArgumentParser) -> None:
                         "CPUs this process may use); on a shared machine give the free cores")
 
 
+#: help texts keep their line breaks (every command's description and epilog are laid out by hand)
+PLAIN = argparse.RawDescriptionHelpFormatter
+
+
 def build_parser() -> argparse.ArgumentParser:
     about = "F2Depth: self-supervised indoor monocular depth. Use a trained model."
     parser = OneLineParser(prog="f2depth", description=about, epilog=EXIT_NOTE)
@@ -165,8 +169,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _add_predict(sub: argparse._SubParsersAction) -> None:
     """The `predict` command: depth maps of an image, a folder or a video."""
-    fmt = argparse.RawDescriptionHelpFormatter
-    p = sub.add_parser("predict", formatter_class=fmt, help="depth maps of an image, a folder or a video",
+    p = sub.add_parser("predict", formatter_class=PLAIN, help="depth maps of an image, a folder or a video",
                        description=PREDICT_DESCRIPTION + "\n\n" + RELATIVE_NOTE, epilog=PREDICT_EPILOG)
     _add_threads(p)
     _add_network(p)
@@ -192,8 +195,7 @@ def _add_predict(sub: argparse._SubParsersAction) -> None:
 
 def _add_ingest(sub: argparse._SubParsersAction) -> None:
     """The `ingest` command: videos and image folders → a raw frame folder."""
-    fmt = argparse.RawDescriptionHelpFormatter
-    p = sub.add_parser("ingest", formatter_class=fmt,
+    p = sub.add_parser("ingest", formatter_class=PLAIN,
                        help="your videos / image folders → a raw frame folder to train on (docs/ingest.md)",
                        description="Each video or image folder becomes one scene of OUT (NYU-raw layout, "
                                    "camera.json, scenes.txt, ingest.json). Defaults: params.yaml's ingest "
@@ -223,8 +225,7 @@ def _add_ingest(sub: argparse._SubParsersAction) -> None:
 
 def _add_export(sub: argparse._SubParsersAction) -> None:
     """The `export` command: the depth network as ONNX."""
-    fmt = argparse.RawDescriptionHelpFormatter
-    p = sub.add_parser("export", formatter_class=fmt, help="export the depth network (ONNX)",
+    p = sub.add_parser("export", formatter_class=PLAIN, help="export the depth network (ONNX)",
                        description=EXPORT_DESCRIPTION, epilog=EXIT_NOTE)
     _add_threads(p)
     p.add_argument("--model", type=Path, required=True, metavar="M", help="depth checkpoint (.pt)")
@@ -242,8 +243,7 @@ def _add_export(sub: argparse._SubParsersAction) -> None:
 
 def _add_reconstruct(sub: argparse._SubParsersAction) -> None:
     """The `reconstruct` command: TSDF fusion of a posed sequence."""
-    fmt = argparse.RawDescriptionHelpFormatter
-    p = sub.add_parser("reconstruct", formatter_class=fmt, help="TSDF fusion of a posed sequence → mesh",
+    p = sub.add_parser("reconstruct", formatter_class=PLAIN, help="TSDF fusion of a posed sequence → mesh",
                        description=RECONSTRUCT_DESCRIPTION, epilog=EXIT_NOTE)
     _add_threads(p)
     _add_network(p, required=False)
