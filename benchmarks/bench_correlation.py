@@ -25,10 +25,10 @@ import time
 
 import torch
 
-import f2depth.flow.pwclite as pwclite_module
-from f2depth.flow.correlation import correlation, correlation_reference
+import f2depth.flow.net.pwclite as pwclite_module
 from f2depth.flow.loss import SINTEL_FT, flow_loss
-from f2depth.flow.pwclite import PWCLite
+from f2depth.flow.net.correlation import correlation, correlation_reference
+from f2depth.flow.net.pwclite import PWCLite
 
 
 def best_ms(fn, repeats: int) -> float:

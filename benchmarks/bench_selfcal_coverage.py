@@ -41,9 +41,9 @@ import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
 from f2depth.camera import NYU_RGB_DIST, NYU_RGB_K, NYU_SIZE_HW, distortion_maps  # noqa: E402
-from f2depth.data.errors import DataError  # noqa: E402
-from f2depth.inference.sources import open_source  # noqa: E402
+from f2depth.errors import DataError  # noqa: E402
 from f2depth.ingest.selfcal import estimate_focal  # noqa: E402
+from f2depth.ingest.sources import open_source  # noqa: E402
 from f2depth.io import write_json, write_text  # noqa: E402
 from f2depth.synth.camera_path import PathStyle, handheld_path, rotation  # noqa: E402
 from f2depth.synth.jobs import room  # noqa: E402

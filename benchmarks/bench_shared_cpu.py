@@ -32,11 +32,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_train_step import depth_step, write_set  # noqa: E402
 
 from f2depth import threads as f2threads  # noqa: E402
-from f2depth.data.prepared import PreparedSet  # noqa: E402
 from f2depth.flow import PWCLite  # noqa: E402
 from f2depth.flow.finetune import FinetuneConfig, prepare_batch, train_step  # noqa: E402
 from f2depth.flow.finetune_data import FlowPairs, collate  # noqa: E402
-from f2depth.flow.network import make_optimizer  # noqa: E402
+from f2depth.flow.net.network import make_optimizer  # noqa: E402
+from f2depth.formats.prepared import PreparedSet  # noqa: E402
 from f2depth.io import write_json  # noqa: E402
 from f2depth.keypoints.store import KeypointFile  # noqa: E402
 

@@ -52,14 +52,14 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_train_step import write_set  # noqa: E402  (the benchmarks' shared synthetic prepared set)
 
 from f2depth import params as P  # noqa: E402
-from f2depth.data.prepared import PreparedSet  # noqa: E402
 from f2depth.depth import DepthModel, DepthModelConfig  # noqa: E402
 from f2depth.eval.suite import model_disparity  # noqa: E402
 from f2depth.eval.timing import time_inference  # noqa: E402
 from f2depth.flow import PWCLite  # noqa: E402
 from f2depth.flow import finetune as ft  # noqa: E402
-from f2depth.flow.correlation import correlation, correlation_reference  # noqa: E402
 from f2depth.flow.finetune_data import FlowPairs, collate  # noqa: E402
+from f2depth.flow.net.correlation import correlation, correlation_reference  # noqa: E402
+from f2depth.formats.prepared import PreparedSet  # noqa: E402
 from f2depth.io import write_json, write_text  # noqa: E402
 from f2depth.keypoints.store import KeypointFile  # noqa: E402
 from f2depth.precision import grad_scaler  # noqa: E402

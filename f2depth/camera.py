@@ -1,4 +1,5 @@
-"""Camera models: the NYU Depth V2 RGB calibration, lens (un)distortion, intrinsics under crop and resize.
+"""Camera models: the NYU Depth V2 RGB calibration, lens (un)distortion, intrinsics under crop and resize, and
+the intrinsics of an image from given values or the NYU camera's field of view (:func:`intrinsics`).
 
 Pixel convention everywhere in f2depth: pixel (u, v) = (column, row) has its centre at integer
 coordinates; ``cv2.resize`` maps a source coordinate x to ``(x + 0.5) * s - 0.5``.
@@ -18,6 +19,8 @@ NYU_RGB_K = np.array([[5.1885790117450188e02, 0.0, 3.2558244941119034e02],
 NYU_RGB_DIST = np.array([2.0796615318809061e-01, -5.8613825163911781e-01, 7.2231363135888329e-04,
                          1.0479627195765181e-03, 4.9856986684705107e-01])
 NYU_SIZE_HW = (480, 640)
+#: horizontal focal length per image width of the NYU Depth V2 RGB camera (the training data)
+NYU_FX_PER_WIDTH = float(NYU_RGB_K[0, 0]) / NYU_SIZE_HW[1]
 
 
 @dataclass(frozen=True)
@@ -112,3 +115,28 @@ def crop_resize_intrinsics(K: np.ndarray, src_hw: tuple[int, int], crop: int, ds
         out[1, 2] = (K[1, 2] - crop + 0.5) * sy - 0.5
     return out
 
+
+def default_intrinsics(height: int, width: int) -> np.ndarray:
+    """K (3,3) for an image of unknown camera: the horizontal field of view of the NYU Depth V2 RGB camera
+    (fx = fy = 0.811·W) and the principal point at the image centre ((W−1)/2, (H−1)/2)."""
+    f = NYU_FX_PER_WIDTH * width
+    return np.array([[f, 0.0, (width - 1) / 2.0], [0.0, f, (height - 1) / 2.0], [0.0, 0.0, 1.0]])
+
+
+def intrinsics(height: int, width: int, fx: float | None = None, fy: float | None = None,
+               cx: float | None = None, cy: float | None = None) -> np.ndarray:
+    """K (3,3) in pixels of a (height, width) image: the given values; fy defaults to fx, cx and cy to the
+    image centre; no fx (and no fy) → :func:`default_intrinsics`."""
+    if fx is None and fy is None:
+        K = default_intrinsics(height, width)
+    else:
+        fx = fx if fx is not None else fy
+        fy = fy if fy is not None else fx
+        K = np.array([[fx, 0.0, (width - 1) / 2.0], [0.0, fy, (height - 1) / 2.0], [0.0, 0.0, 1.0]])
+    if cx is not None:
+        K[0, 2] = cx
+    if cy is not None:
+        K[1, 2] = cy
+    if not (K[0, 0] > 0 and K[1, 1] > 0):
+        raise ValueError(f"focal lengths must be positive, got fx={K[0, 0]}, fy={K[1, 1]}")
+    return K

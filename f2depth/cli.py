@@ -281,10 +281,10 @@ def _out(text: str) -> None:
 
 
 def _cmd_predict(args: argparse.Namespace) -> int:
-    from f2depth.data.writable import check_apart
+    from f2depth.formats.writable import check_apart
     from f2depth.inference.backends import load_backend
     from f2depth.inference.predict import Predictor, PredictSettings, run_predict
-    from f2depth.inference.sources import check_output_apart, open_source
+    from f2depth.ingest.sources import check_output_apart, open_source
     from f2depth.threads import budget
 
     check_output_apart(args.input, args.output)
@@ -337,7 +337,7 @@ def _cmd_ingest(args: argparse.Namespace) -> int:
 
 
 def _cmd_export(args: argparse.Namespace) -> int:
-    from f2depth.data.writable import check_output_file
+    from f2depth.formats.writable import check_output_file
     from f2depth.inference.backends import load_depth_model
     from f2depth.inference.export import export_onnx
 
@@ -365,7 +365,7 @@ def _cmd_export(args: argparse.Namespace) -> int:
 
 
 def _cmd_reconstruct(args: argparse.Namespace) -> int:
-    from f2depth.data.writable import check_output_file
+    from f2depth.formats.writable import check_output_file
     from f2depth.inference.backends import load_backend, size_mismatch
     from f2depth.inference.predict import Predictor
     from f2depth.inference.reconstruct import ReconstructSettings, TSDFSettings, reconstruct
@@ -433,7 +433,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     line)."""
     args = build_parser().parse_args(argv)
     from f2depth import threads
-    from f2depth.data.errors import DataError
+    from f2depth.errors import DataError
     from f2depth.inference.export import ExportError
     from f2depth.inference.optional import MissingDependency
     from f2depth.params import ParamsError

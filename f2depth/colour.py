@@ -17,12 +17,38 @@ HSV hue rotated by ``f`` turns; every result clipped to [0, 1].
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from dataclasses import dataclass
+
 import numpy as np
 import torch
 
 GREY_PIL = (0.299, 0.587, 0.114)
 GREY_MATLAB = (0.2989, 0.5870, 0.1140)
 JITTER_OPS = ("brightness", "contrast", "saturation", "hue")
+
+
+@dataclass(frozen=True)
+class AugmentConfig:
+    """P²Net's augmentation recipe (P²Net's ``datasets/nyu_dataset.py``), the one both the depth training
+    (f2depth.train.augment) and the flow fine-tuning (f2depth.flow.augment) use: a horizontal flip with
+    probability ``flip_p``; with probability ``jitter_p`` a colour jitter whose factors are drawn from these
+    ranges (hue in turns) and applied in a drawn order. ``params.yaml`` switches it on or off only
+    (``flow_finetune.augment``, ``train_depth.augment``): the recipe is P²Net's, not a setting."""
+
+    flip_p: float = 0.5
+    jitter_p: float = 0.5
+    brightness: tuple[float, float] = (0.8, 1.2)
+    contrast: tuple[float, float] = (0.8, 1.2)
+    saturation: tuple[float, float] = (0.8, 1.2)
+    hue: tuple[float, float] = (-0.1, 0.1)
+
+    def ranges(self) -> tuple[tuple[float, float], ...]:
+        """The factor ranges in ``JITTER_OPS``'s order."""
+        return self.brightness, self.contrast, self.saturation, self.hue
+
+
+P2NET_AUGMENT = AugmentConfig()
 
 
 def grey(img: torch.Tensor, weights: tuple[float, float, float] = GREY_PIL) -> torch.Tensor:
@@ -79,6 +105,15 @@ def adjust(img: torch.Tensor, op: str, factor: float,
     else:
         raise ValueError(f"unknown colour operation {op!r} (one of {', '.join(JITTER_OPS)})")
     return out.clamp(0.0, 1.0)
+
+
+def jitter(img: torch.Tensor, factors: Sequence[float], order: Sequence[int],
+           weights: tuple[float, float, float]) -> torch.Tensor:
+    """The colour jitter: ``adjust`` with ``JITTER_OPS[k]`` and ``factors[k]`` for each ``k`` of ``order``,
+    on RGB ``(...,3,H,W)`` in [0, 1] (``factors`` in ``JITTER_OPS``'s order)."""
+    for k in order:
+        img = adjust(img, JITTER_OPS[k], factors[k], weights)
+    return img
 
 
 def color_wheel() -> np.ndarray:

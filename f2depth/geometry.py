@@ -220,3 +220,8 @@ def occlusion_by_depth(depth_t: torch.Tensor, depth_s: torch.Tensor, K: torch.Te
                             align_corners=True)
     known = (sampled > 0) & (z > 0) & (depth_t > 0) & (in_view_mask(flow) > 0)
     return known & (z > sampled * (1.0 + rel_tol))
+
+
+def endpoint_error(flow: torch.Tensor, gt: torch.Tensor) -> torch.Tensor:
+    """``flow, gt (B,2,H,W)`` pixels, x first → EPE ``(B,1,H,W)``."""
+    return (flow - gt).norm(dim=1, keepdim=True)

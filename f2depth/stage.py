@@ -15,7 +15,7 @@ import os
 import sys
 from collections.abc import Callable, Sequence
 
-from f2depth.data.errors import DataError
+from f2depth.errors import DataError
 from f2depth.params import MAX_LINE, ParamsError, clip
 from f2depth.signals import Terminated, sigterm_as_interrupt
 

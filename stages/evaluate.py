@@ -4,11 +4,11 @@ Usage: python stages/evaluate.py --variant NAME [--params params.yaml] [--models
        [--metrics metrics/evaluate] [--reports reports/eval]
 
 For each seed k of `train_depth.seeds`, models/depth_NAME/seed<k>.pt runs the protocol of every test set of
-`evaluate.datasets` (f2depth/eval/registry.py: NYU, the `data.nyu_labeled` test split with `evaluate.nyu_gt`,
-`evaluate.nyu_crop`; 7-Scenes, every `evaluate.sevenscenes_stride`-th test frame; Campus), each without and
-with flip post-processing (one forward pass of each image and its mirror gives both), and the first seed's
-model is timed at `evaluate.timing_height` × `timing_width` (batch 1, median of `timing_repeats` runs after
-`timing_warmup`; the other seeds' networks are the same, their rows repeat it). Writes
+`evaluate.datasets` (f2depth/protocols/registry.py: NYU, the `data.nyu_labeled` test split with
+`evaluate.nyu_gt`, `evaluate.nyu_crop`; 7-Scenes, every `evaluate.sevenscenes_stride`-th test frame; Campus),
+each without and with flip post-processing (one forward pass of each image and its mirror gives both), and the
+first seed's model is timed at `evaluate.timing_height` × `timing_width` (batch 1, median of `timing_repeats`
+runs after `timing_warmup`; the other seeds' networks are the same, their rows repeat it). Writes
 - metrics/evaluate/NAME.json: the mean over seeds of each set's headline (nyu.*, nyu_pp.*, sevenscenes.* =
   mean over all test frames as the paper's Average row, campus.* = mean of the scene rows, ms, ms_pp),
   `n_seeds`, `per_seed`, `decoder_upsample` (`evaluate.decoder_upsample`: the depth decoder is rebuilt with
@@ -33,14 +33,14 @@ import torch
 
 from f2depth import params as P
 from f2depth import threads, tracking
-from f2depth.data.errors import DataError
-from f2depth.data.nyu_labeled import GT_KEYS
-from f2depth.data.samples import limit
-from f2depth.data.writable import check_output_folder
 from f2depth.depth import model_from_checkpoint, read_checkpoint
-from f2depth.eval import registry
+from f2depth.errors import DataError
 from f2depth.eval.suite import SuiteConfig, evaluate_model, metrics_document, model_disparity, rows_csv
+from f2depth.formats.nyu_labeled import GT_KEYS
+from f2depth.formats.samples import limit
+from f2depth.formats.writable import check_output_folder
 from f2depth.io import save_npz, write_json, write_text
+from f2depth.protocols import registry
 from f2depth.stage import run_stage
 
 

@@ -13,10 +13,10 @@ from dataclasses import dataclass, field
 
 from f2depth import params as P
 from f2depth import threads, tracking
-from f2depth.data.prepared import PreparedSet
-from f2depth.flow.checkpoint import load_flow_model
 from f2depth.flow.figures import comparison_rows, prediction_rows, render_flow_comparison
 from f2depth.flow.finetune_data import gt_pairs, image_pairs, split_pairs, spread
+from f2depth.flow.net.checkpoint import load_flow_model
+from f2depth.formats.prepared import PreparedSet
 from f2depth.stage import run_stage
 
 TITLES = {"full": "Fine-tuned full", "patch": "Fine-tuned patch (F²Depth)"}

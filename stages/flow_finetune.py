@@ -24,10 +24,8 @@ import torch
 
 from f2depth import params as P
 from f2depth import threads, tracking
-from f2depth.data.errors import DataError
-from f2depth.data.prepared import PreparedSet
 from f2depth.epochs import clear_state, file_digest, write_history
-from f2depth.flow.checkpoint import load_flow_model, save_flow_model
+from f2depth.errors import DataError
 from f2depth.flow.evaluation import evaluate_gt_pairs
 from f2depth.flow.finetune import (
     HISTORY_COLUMNS,
@@ -36,6 +34,8 @@ from f2depth.flow.finetune import (
     finetune,
 )
 from f2depth.flow.finetune_data import FlowPairs, gt_pairs, split_pairs
+from f2depth.flow.net.checkpoint import load_flow_model, save_flow_model
+from f2depth.formats.prepared import PreparedSet
 from f2depth.io import write_json
 from f2depth.keypoints.store import KeypointFile
 from f2depth.numbers import format_number as fmt

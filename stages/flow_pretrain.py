@@ -7,7 +7,7 @@ With `flow_pretrain.checkpoint` set, that ARFlow *.pth.tar (or another state dic
 imported (the paper). Otherwise the network is trained from scratch, resuming from `resume_dir` after an
 interruption:
 - `source: chairs` (the CPU default): supervised on FlyingChairs-style pairs generated on the fly
-  (f2depth.synth.chairs; textures: procedural plus crops of the training sequences at `data.sintel`)
+  (f2depth.flow.chairs; textures: procedural plus crops of the training sequences at `data.sintel`)
   with the bootstrap of f2depth.flow.bootstrap (`flow_pretrain.chairs`);
 - `source: synthetic | sintel`: ARFlow's unsupervised schedule (f2depth.flow.pretrain) on the
   Sintel-layout set at `data.sintel` (the animated set or MPI Sintel).
@@ -30,13 +30,13 @@ import torch
 
 from f2depth import params as P
 from f2depth import threads, tracking
-from f2depth.data.sintel import list_pairs, list_sequences
 from f2depth.epochs import write_history
 from f2depth.flow import NETWORKS, build_network, load_flow_model, save_flow_model
 from f2depth.flow import bootstrap as chairs_route
 from f2depth.flow.chairs_ranks import chairs_pool, pretrain_in_ranks
 from f2depth.flow.pretrain import HISTORY_COLUMNS, PretrainConfig, clear_resume, pretrain
 from f2depth.flow.validate import evaluate_generated, evaluate_prepared, evaluate_sintel
+from f2depth.formats.sintel import list_pairs, list_sequences
 from f2depth.io import write_json
 from f2depth.numbers import format_number as fmt
 from f2depth.stage import run_stage
@@ -66,7 +66,7 @@ class PretrainStage:
     def __post_init__(self) -> None:
         if self.network not in NETWORKS:
             raise ValueError(f"network = {self.network!r} is not a flow network; use one of "
-                             f"{sorted(NETWORKS)} (f2depth.flow.checkpoint.NETWORKS)")
+                             f"{sorted(NETWORKS)} (f2depth.flow.net.checkpoint.NETWORKS)")
         if not self.passes:
             raise ValueError("passes is empty; name the Sintel passes to train on and score (clean, final)")
 

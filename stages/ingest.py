@@ -15,8 +15,8 @@ from pathlib import Path
 from f2depth import params as P
 from f2depth import threads, tracking
 from f2depth.data.training_video import training_video
-from f2depth.inference.sources import IMAGE_EXTENSIONS, VIDEO_EXTENSIONS
 from f2depth.ingest.run import IngestConfig, ingest
+from f2depth.ingest.sources import IMAGE_EXTENSIONS, VIDEO_EXTENSIONS
 from f2depth.io import atomic_dir, write_json, write_text
 from f2depth.stage import run_stage
 

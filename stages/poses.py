@@ -16,8 +16,8 @@ from typing import Any
 
 from f2depth import params as P
 from f2depth import threads, tracking
-from f2depth.data.prepared import PreparedSet
 from f2depth.data.training_video import training_video
+from f2depth.formats.prepared import PreparedSet
 from f2depth.io import write_json
 from f2depth.poses.estimate import PosesConfig, estimate_scenes, tuple_priors
 from f2depth.poses.metrics import prior_metrics

@@ -27,8 +27,8 @@ from pathlib import Path
 
 from f2depth import params as P
 from f2depth import threads, tracking
-from f2depth.data.writable import check_output_folder
 from f2depth.epochs import clear_state, write_history
+from f2depth.formats.writable import check_output_folder
 from f2depth.io import atomic_dir, write_json
 from f2depth.numbers import format_number as fmt
 from f2depth.stage import run_stage

@@ -397,15 +397,9 @@ def _finetune_config(loss: str):
 def metrics() -> Values:
     """Per-image metrics, median scaling, clipping, aggregation, flip post-processing, EPE."""
     from f2depth.colour import flow_to_color
-    from f2depth.eval.metrics import (
-        aggregate,
-        clip_depth,
-        compute_errors,
+    from f2depth.depth.predict import (
         depth_from_disparity,
         flip_post_process,
-        image_metrics,
-        mean_of_rows,
-        median_scale,
         pp_weights,
         predict_disparity,
         resize_disparity,
@@ -415,6 +409,14 @@ def metrics() -> Values:
         epe_stats,
         gradient_energy,
         low_texture_mask,
+    )
+    from f2depth.protocols.metrics import (
+        aggregate,
+        clip_depth,
+        compute_errors,
+        image_metrics,
+        mean_of_rows,
+        median_scale,
     )
 
     rng = np.random.default_rng(14)
@@ -575,11 +577,11 @@ DEPTH_EPOCH = 1
 
 def flow_finetune_step() -> Values:
     """One fine-tuning ``train_step`` of a seeded random PWC-Lite in float64, ``patch`` and ``full``."""
-    from f2depth.data.prepared import PreparedSet
     from f2depth.epochs import epoch_generator
     from f2depth.flow import PWCLite
     from f2depth.flow.finetune import make_optimizer, prepare_batch, train_step
     from f2depth.flow.finetune_data import FlowPairs, collate
+    from f2depth.formats.prepared import PreparedSet
     from f2depth.keypoints import KeypointFile
 
     out: Values = {}
@@ -613,16 +615,16 @@ FLOW_EPOCH = 2
 def evaluation() -> Values:
     """NYU, 7-Scenes and Campus protocols with a seeded 64×96 DepthModel on the fakes, ± post-processing,
     and the evaluation suite's headline (the numbers of metrics/evaluate/<variant>.json)."""
-    from f2depth.data.campus import CampusSet
-    from f2depth.data.nyu_labeled import NYULabeledSet
-    from f2depth.data.sevenscenes import SevenScenesSet
     from f2depth.depth import DepthModel, DepthModelConfig
-    from f2depth.eval.campus import PROTOCOL as CAMPUS
-    from f2depth.eval.metrics import METRIC_NAMES
-    from f2depth.eval.nyu import PROTOCOL as NYU
-    from f2depth.eval.sevenscenes import PROTOCOL as SEVENSCENES
     from f2depth.eval.suite import DATASETS, SuiteConfig, evaluate_model, model_disparity
     from f2depth.eval.suite import GROUPS as GROUPS_OF_HEADLINE
+    from f2depth.formats.campus import CampusSet
+    from f2depth.formats.nyu_labeled import NYULabeledSet
+    from f2depth.formats.sevenscenes import SevenScenesSet
+    from f2depth.protocols.campus import PROTOCOL as CAMPUS
+    from f2depth.protocols.metrics import METRIC_NAMES
+    from f2depth.protocols.nyu import PROTOCOL as NYU
+    from f2depth.protocols.sevenscenes import PROTOCOL as SEVENSCENES
 
     torch.manual_seed(7)
     # trained with nearest upsampling, evaluated with the decoder rebuilt bilinear (evaluate.decoder_upsample)
@@ -684,7 +686,7 @@ def evaluation() -> Values:
 def keypoints_prepare() -> Values:
     """DSO's selector (``dso`` and ``p2net`` presets) on one synthetic image; ``prepare`` on a raw scene."""
     from f2depth.data.prepare import PrepareConfig, SuperpixelParams, prepare
-    from f2depth.data.prepared import PreparedSet
+    from f2depth.formats.prepared import PreparedSet
     from f2depth.keypoints import fill_up, select_pixels
 
     out: Values = {}

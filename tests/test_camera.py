@@ -16,7 +16,8 @@ from f2depth.camera import (
     undistort_image,
     undistort_normalized,
 )
-from f2depth.data.prepare import crop_and_resize, prepare_image
+from f2depth.data.prepare import crop_and_resize
+from f2depth.formats.prepared import prepare_image
 
 
 def distort_normalized(xy: np.ndarray, dist: np.ndarray) -> np.ndarray:

@@ -19,7 +19,7 @@ import pytest
 from f2depth.cli import main
 from f2depth.inference.backends import load_backend
 from f2depth.inference.predict import Predictor, PredictSettings, run_predict
-from f2depth.inference.sources import Frame
+from f2depth.ingest.sources import Frame
 from f2depth.io import OUTPUT_MARKER
 
 

@@ -1,4 +1,4 @@
-"""Tests for f2depth.data.campus: points.csv parsing and every bad row the issue names."""
+"""Tests for f2depth.formats.campus: points.csv parsing and every bad row the issue names."""
 
 from __future__ import annotations
 
@@ -6,8 +6,8 @@ import fakes
 import numpy as np
 import pytest
 
-from f2depth.data.campus import CampusSet
-from f2depth.data.errors import DataError
+from f2depth.errors import DataError
+from f2depth.formats.campus import CampusSet
 
 
 @pytest.fixture

@@ -1,10 +1,10 @@
-"""Tests for f2depth.data.errors: message format and survival across process boundaries."""
+"""Tests for f2depth.errors: message format and survival across process boundaries."""
 
 from __future__ import annotations
 
 import pickle
 
-from f2depth.data.errors import DataError
+from f2depth.errors import DataError
 
 
 def test_message_names_path_problem_and_fix():

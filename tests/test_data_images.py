@@ -1,4 +1,4 @@
-"""Tests for f2depth.data.images: decoding with checks for missing, unreadable, truncated, wrong size."""
+"""Tests for f2depth.formats.images: decoding with checks for missing, unreadable, truncated, wrong size."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ import fakes
 import numpy as np
 import pytest
 
-from f2depth.data.errors import DataError
-from f2depth.data.images import read_image, read_png16
+from f2depth.errors import DataError
+from f2depth.formats.images import read_image, read_png16
 from f2depth.io import write_rgb
 
 

@@ -1,4 +1,4 @@
-"""Tests for f2depth.data.nyu_labeled: splits.mat, the HDF5 labeled .mat, NYULabeledSet."""
+"""Tests for f2depth.formats.nyu_labeled: splits.mat, the HDF5 labeled .mat, NYULabeledSet."""
 
 from __future__ import annotations
 
@@ -10,8 +10,8 @@ import h5py
 import numpy as np
 import pytest
 
-from f2depth.data.errors import DataError
-from f2depth.data.nyu_labeled import NYULabeledSet, read_splits, scene_names, scenes_of_test_images
+from f2depth.errors import DataError
+from f2depth.formats.nyu_labeled import NYULabeledSet, read_splits, scene_names, scenes_of_test_images
 
 REAL_SPLITS = Path(__file__).resolve().parent / "data" / "nyu" / "splits.mat"
 SCENES = ["bedroom_0001", "kitchen_0003a", "bedroom_0001", "office_0012"]

@@ -1,4 +1,4 @@
-"""Tests for f2depth.data.nyu_raw: scene and frame listing (names parsed and checked), frame reading."""
+"""Tests for f2depth.formats.nyu_raw: scene and frame listing (names parsed and checked), frame reading."""
 
 from __future__ import annotations
 
@@ -6,8 +6,8 @@ import fakes
 import numpy as np
 import pytest
 
-from f2depth.data.errors import DataError
-from f2depth.data.nyu_raw import list_frames, list_scenes, read_frame
+from f2depth.errors import DataError
+from f2depth.formats.nyu_raw import list_frames, list_scenes, read_frame
 
 
 def test_scenes_and_frames_sorted_by_timestamp(tmp_path):

@@ -12,9 +12,9 @@ from test_flow_bootstrap import small_config
 
 from f2depth import data_parallel, processes
 from f2depth.flow.bootstrap import heldout_pairs
+from f2depth.flow.chairs import render_pairs, texture_pool
 from f2depth.flow.chairs_ranks import chairs_pool, pretrain_in_ranks
-from f2depth.flow.checkpoint import build_network
-from f2depth.synth.chairs import render_pairs, texture_pool
+from f2depth.flow.net.checkpoint import build_network
 
 
 def _batch() -> tuple[torch.Tensor, torch.Tensor]:

@@ -11,23 +11,20 @@ import numpy as np
 import pytest
 
 from f2depth.camera import NYU_RGB_DIST, NYU_RGB_K, NYU_SIZE_HW, crop_resize_intrinsics
-from f2depth.data.errors import DataError
 from f2depth.data.prepare import (
     PrepareConfig,
     SuperpixelParams,
     crop_and_resize,
-    crop_border,
     held_out_count,
     prepare,
-    prepare_image,
     read_scene_list,
     room_of,
     select_train_scenes,
     superpixel_stats,
     superpixels,
-    undistort_crop,
 )
-from f2depth.data.prepared import PreparedSet
+from f2depth.errors import DataError
+from f2depth.formats.prepared import PreparedSet, crop_border, prepare_image, undistort_crop
 from f2depth.io import OUTPUT_MARKER
 
 pytestmark = pytest.mark.filterwarnings("ignore:.*fewer than 3 sampled frames:UserWarning")

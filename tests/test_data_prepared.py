@@ -1,4 +1,4 @@
-"""Tests for f2depth.data.prepared: the reader of data/prepared, on good and broken sets."""
+"""Tests for f2depth.formats.prepared: the reader of data/prepared, on good and broken sets."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ import fakes
 import numpy as np
 import pytest
 
-from f2depth.data.errors import DataError
-from f2depth.data.prepared import PreparedSet
+from f2depth.errors import DataError
+from f2depth.formats.prepared import PreparedSet
 
 HW = (8, 10)
 K = [[9.0, 0.0, 4.5], [0.0, 9.0, 3.5], [0.0, 0.0, 1.0]]

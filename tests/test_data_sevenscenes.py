@@ -1,4 +1,4 @@
-"""Tests for f2depth.data.sevenscenes: split files, depth units and invalid values, poses, bad inputs."""
+"""Tests for f2depth.formats.sevenscenes: split files, depth units and invalid values, poses, bad inputs."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ import fakes
 import numpy as np
 import pytest
 
-from f2depth.data.errors import DataError
-from f2depth.data.sevenscenes import SevenScenesSet, read_pose
+from f2depth.errors import DataError
+from f2depth.formats.sevenscenes import SevenScenesSet, read_pose
 
 SCENES = {"chess": ([3, 5], [1]), "heads": ([1], [2])}
 

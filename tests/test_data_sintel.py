@@ -1,4 +1,4 @@
-"""MPI-Sintel layout loader and .flo files (f2depth.data.sintel)."""
+"""MPI-Sintel layout loader and .flo files (f2depth.formats.sintel)."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 import torch
 
-from f2depth.data.errors import DataError
-from f2depth.data.sintel import (
+from f2depth.errors import DataError
+from f2depth.formats.sintel import (
     SintelPairs,
     list_pairs,
     list_sequences,

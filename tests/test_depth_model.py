@@ -5,7 +5,6 @@ from __future__ import annotations
 import pytest
 import torch
 
-from f2depth.data.errors import CheckpointError
 from f2depth.depth import (
     DepthModel,
     DepthModelConfig,
@@ -17,6 +16,7 @@ from f2depth.depth import (
 from f2depth.depth.decoder import DepthDecoder, sigmoid_input_for_depth
 from f2depth.depth.encoder import ResnetEncoder
 from f2depth.depth.resnet import ResNet
+from f2depth.errors import CheckpointError
 
 
 @pytest.fixture(scope="module")

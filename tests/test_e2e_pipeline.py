@@ -27,7 +27,7 @@ import pytest
 import torch
 import yaml
 
-from f2depth.flow.checkpoint import load_flow_model
+from f2depth.flow.net.checkpoint import load_flow_model
 
 ROOT = Path(__file__).resolve().parents[1]
 BIN = Path(sys.executable).parent

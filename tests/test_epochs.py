@@ -13,8 +13,6 @@ import torch
 import train_fakes
 from test_flow_pretrain import make_set
 
-from f2depth.data.prepared import PreparedSet
-from f2depth.data.sintel import list_pairs
 from f2depth.depth import DepthModel, DepthModelConfig
 from f2depth.epochs import EpochLoop, NonFiniteEpochError, clear_state, load_state, save_state
 from f2depth.flow import PWCLite
@@ -23,6 +21,8 @@ from f2depth.flow import pretrain as flow_pretrain
 from f2depth.flow.finetune import FinetuneConfig
 from f2depth.flow.finetune_data import FlowPairs
 from f2depth.flow.pretrain import PretrainConfig, pretrain
+from f2depth.formats.prepared import PreparedSet
+from f2depth.formats.sintel import list_pairs
 from f2depth.keypoints import KeypointFile
 from f2depth.train.data import DataConfig, TupleDataset
 from f2depth.train.loop import LoopConfig, fit, seed_everything

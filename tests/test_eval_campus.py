@@ -1,4 +1,4 @@
-"""Tests of the Campus protocol (f2depth.eval.campus): point sampling at the right pixels, per scene."""
+"""Tests of the Campus protocol (f2depth.protocols.campus): point sampling at the right pixels, per scene."""
 
 from __future__ import annotations
 
@@ -9,9 +9,9 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from f2depth.data.samples import EvalSample
-from f2depth.eval.campus import PROTOCOL
-from f2depth.eval.scoring import network_size, sample_at_points
+from f2depth.formats.samples import EvalSample
+from f2depth.protocols.campus import PROTOCOL
+from f2depth.protocols.scoring import network_size, sample_at_points
 
 A, B, CV = 0.5, 0.03, 0.011  # disp(u, v) = A + B·u + CV·v, a known function of the pixel position
 

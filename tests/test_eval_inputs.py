@@ -1,4 +1,4 @@
-"""Tests for f2depth.data.samples (the typed sample, subsets) and f2depth.eval.inputs (input resizing,
+"""Tests for f2depth.formats.samples (the typed sample, subsets) and f2depth.protocols.inputs (input resizing,
 batching)."""
 
 from __future__ import annotations
@@ -8,9 +8,9 @@ import pytest
 import torch
 from PIL import Image
 
-from f2depth.data import samples as S
-from f2depth.data.samples import EvalSample
-from f2depth.eval import inputs as I
+from f2depth.formats import samples as S
+from f2depth.formats.samples import EvalSample
+from f2depth.protocols import inputs as I
 
 
 def test_sample_name_and_checks():

@@ -1,4 +1,4 @@
-"""Tests for f2depth.eval.metrics: hand-computed metrics, median scaling, aggregation, flip PP."""
+"""Tests for f2depth.protocols.metrics: hand-computed metrics, median scaling, aggregation, flip PP."""
 
 from __future__ import annotations
 
@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 import torch
 
-from f2depth.eval import metrics as M
+from f2depth.depth import predict as P
+from f2depth.protocols import metrics as M
 
 
 def test_metrics_hand_computed_2x2():
@@ -107,7 +108,7 @@ def test_aggregate_mean_std_and_stable_names():
 
 
 def test_pp_weights_ramp():
-    l_mask, r_mask = M.pp_weights(3, 101)  # x = 0.00, 0.01, ..., 1.00
+    l_mask, r_mask = P.pp_weights(3, 101)  # x = 0.00, 0.01, ..., 1.00
     assert l_mask.shape == (3, 101)
     assert l_mask[0, 0] == 1.0 and l_mask[0, 5] == pytest.approx(1.0)  # left 5 %
     assert l_mask[0, 7] == pytest.approx(0.6)  # 1 - 20·(0.07 - 0.05)
@@ -120,12 +121,12 @@ def test_flip_post_process_blend_by_hand():
     w = 101
     direct = np.ones((1, 2, w))
     flipped_back = np.zeros((1, 2, w))
-    out = M.flip_post_process(direct, flipped_back)
+    out = P.flip_post_process(direct, flipped_back)
     assert out[0, 0, 0] == pytest.approx(0.0)  # left border: the flipped-back prediction
     assert out[0, 0, -1] == pytest.approx(1.0)  # right border: the direct prediction
     assert out[0, 0, 50] == pytest.approx(0.5)  # middle: the mean
     assert out[0, 0, 7] == pytest.approx(0.5 * (1 - 0.6))  # on the ramp: (1 - l - r)/2 with r = 0
-    t = M.flip_post_process(torch.ones(1, 2, w), torch.zeros(1, 2, w))
+    t = P.flip_post_process(torch.ones(1, 2, w), torch.zeros(1, 2, w))
     np.testing.assert_allclose(t.numpy(), out, atol=1e-7)
 
 
@@ -138,9 +139,9 @@ def test_pp_of_symmetric_prediction_is_identity():
         return sym.expand(x.shape[0], 1, 5, 12)
 
     img = torch.rand(1, 3, 5, 12)
-    pp = M.predict_disparity(constant, img, post_process=True)
+    pp = P.predict_disparity(constant, img, post_process=True)
     torch.testing.assert_close(pp, sym)
-    assert torch.allclose(M.flip_post_process(sym, sym), sym)
+    assert torch.allclose(P.flip_post_process(sym, sym), sym)
 
 
 def test_pp_of_flip_equivariant_predictor_is_identity_and_doubles_batch():
@@ -151,8 +152,8 @@ def test_pp_of_flip_equivariant_predictor_is_identity_and_doubles_batch():
         return 0.2 + x[:, :1] ** 2
 
     img = torch.rand(2, 3, 8, 10)
-    plain = M.predict_disparity(pixelwise, img)
-    pp = M.predict_disparity(pixelwise, img, post_process=True)
+    plain = P.predict_disparity(pixelwise, img)
+    pp = P.predict_disparity(pixelwise, img, post_process=True)
     assert seen == [2, 4]
     torch.testing.assert_close(pp, plain)
 
@@ -162,18 +163,18 @@ def test_predict_disparity_upsampling_and_shape_check():
         return torch.arange(4.0).reshape(1, 1, 2, 2).expand(x.shape[0], 1, 2, 2) + 1
 
     img = torch.rand(1, 3, 2, 2)
-    near = M.predict_disparity(pred, img, out_hw=(4, 4))
+    near = P.predict_disparity(pred, img, out_hw=(4, 4))
     assert near.shape == (1, 1, 4, 4)
     assert near[0, 0, 0].tolist() == [1.0, 1.0, 2.0, 2.0]
-    bil = M.predict_disparity(pred, img, out_hw=(4, 4), upsample="bilinear")
+    bil = P.predict_disparity(pred, img, out_hw=(4, 4), upsample="bilinear")
     assert bil[0, 0, 0].tolist() == pytest.approx([1.0, 1.25, 1.75, 2.0])
     with pytest.raises(ValueError, match="upsample"):
-        M.predict_disparity(pred, img, out_hw=(4, 4), upsample="cubic")
+        P.predict_disparity(pred, img, out_hw=(4, 4), upsample="cubic")
     with pytest.raises(ValueError, match=r"\(B,1,H,W\)"):
-        M.predict_disparity(lambda x: x, img)
+        P.predict_disparity(lambda x: x, img)
 
 
 def test_depth_from_disparity():
-    d = M.depth_from_disparity(torch.tensor([0.5, 0.0]))
+    d = P.depth_from_disparity(torch.tensor([0.5, 0.0]))
     assert d[0] == pytest.approx(2.0)
     assert np.isfinite(d[1]) and d[1] > 1e6

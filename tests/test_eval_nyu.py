@@ -1,4 +1,4 @@
-"""Tests of the NYU protocol (f2depth.eval.nyu) on fake NYU samples whose perfect prediction is known.
+"""Tests of the NYU protocol (f2depth.protocols.nyu) on fake NYU samples whose perfect prediction is known.
 
 The rgb inside the Eigen crop is made of 7×3 blocks, so an INTER_AREA resize of the 427×561 crop to
 61×187 is exact and a nearest upsample of the 61×187 prediction gives the blocks back. The predictor
@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 import torch
 
-from f2depth.data.samples import EvalSample
-from f2depth.eval import nyu
-from f2depth.eval.scoring import resolve_crop
+from f2depth.formats.samples import EvalSample
+from f2depth.protocols import nyu
+from f2depth.protocols.scoring import resolve_crop
 
 NET_HW = (61, 187)  # 427 / 7, 561 / 3
 

@@ -1,4 +1,4 @@
-"""The registry of test sets (f2depth.eval.registry) is the one list `evaluate` and `tables` read: every
+"""The registry of test sets (f2depth.protocols.registry) is the one list `evaluate` and `tables` read: every
 line resolves to its protocol and has a layout in the tables (f2depth.report.layouts), every stand-in it
 names is one synth makes, and the DVC stages that read the registry depend on every module and data path
 the registered test sets bring."""
@@ -12,9 +12,10 @@ from pathlib import Path
 import pytest
 import yaml
 
-from f2depth.data.errors import DataError
-from f2depth.eval import registry, suite
-from f2depth.eval.protocol import Protocol
+from f2depth.errors import DataError
+from f2depth.eval import suite
+from f2depth.protocols import registry
+from f2depth.protocols.protocol import Protocol
 from f2depth.report import layouts
 from f2depth.synth import FINISH, SynthConfig, plan
 
@@ -63,7 +64,7 @@ IMPORTS = """
 import importlib.util, sys
 spec = importlib.util.spec_from_file_location("stage", "stages/{stage}.py")
 spec.loader.exec_module(importlib.util.module_from_spec(spec))
-from f2depth.eval import registry
+from f2depth.protocols import registry
 registry.protocols()
 print("\\n".join(m.__file__ for n, m in sys.modules.items() if n.startswith("f2depth") and m.__file__))
 """
@@ -84,7 +85,8 @@ def test_stages_depend_on_what_the_registered_test_sets_bring(stage):
     def covered(path: str) -> bool:
         return any(path == d or path.startswith(d.rstrip("/") + "/") for d in deps)
 
-    eval_and_data = {f for f in imported_files(stage) if f.startswith(("f2depth/eval/", "f2depth/data/"))}
+    scoring = ("f2depth/eval/", "f2depth/protocols/", "f2depth/formats/")
+    eval_and_data = {f for f in imported_files(stage) if f.startswith(scoring)}
     assert sorted(f for f in eval_and_data if not covered(f)) == []
     if stage == "evaluate":
         for protocol in registry.protocols():

@@ -1,4 +1,5 @@
-"""Tests of the 7-Scenes protocol (f2depth.eval.sevenscenes) on fake frames with a known perfect prediction.
+"""Tests of the 7-Scenes protocol (f2depth.protocols.sevenscenes) on fake frames with a known perfect
+prediction.
 
 Frames are 480×640 made of 10×10 blocks, the network size is 48×64 (INTER_AREA and nearest upsampling
 are exact), and the predictor maps red to disparity pixel by pixel.
@@ -13,10 +14,10 @@ import numpy as np
 import pytest
 import torch
 
-from f2depth.data.samples import EvalSample
-from f2depth.data.sevenscenes import read_depth_mm
-from f2depth.eval import sevenscenes as S
-from f2depth.eval.scoring import Settings
+from f2depth.formats.samples import EvalSample
+from f2depth.formats.sevenscenes import read_depth_mm
+from f2depth.protocols import sevenscenes as S
+from f2depth.protocols.scoring import Settings
 
 PROTOCOL = S.PROTOCOL
 

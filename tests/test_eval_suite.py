@@ -14,9 +14,10 @@ import numpy as np
 import pytest
 import torch
 
-from f2depth.data.samples import EvalSample
-from f2depth.eval import registry, suite
-from f2depth.eval.metrics import METRIC_NAMES
+from f2depth.eval import suite
+from f2depth.formats.samples import EvalSample
+from f2depth.protocols import registry
+from f2depth.protocols.metrics import METRIC_NAMES
 
 
 def constant(x: torch.Tensor) -> torch.Tensor:

@@ -16,9 +16,9 @@ from depth_scenes import plane_scene
 from test_train_stage import load_stage
 
 from f2depth import params as P
-from f2depth.data.errors import DataError
-from f2depth.data.prepared import PreparedSet
+from f2depth.errors import DataError
 from f2depth.flow import PWCLite
+from f2depth.formats.prepared import PreparedSet
 from f2depth.train.augment import flip_image
 from f2depth.train.exact_teacher import ExactTeacher, image_key
 from f2depth.train.settings import settings_from_params

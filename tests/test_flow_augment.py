@@ -6,8 +6,8 @@ import pytest
 import torch
 from test_flow_patch_loss import patch_cfg
 
+from f2depth.colour import AugmentConfig
 from f2depth.flow.augment import (
-    AugmentConfig,
     augment_batch,
     color_jitter,
     flip_and_swap,
@@ -39,12 +39,12 @@ def test_flip_and_swap_is_arflows_per_sample_draw_from_the_generator():
 
 def test_jitter_shares_parameters_between_frames_and_is_seeded():
     img = rand_img(4)
-    a1, a2 = color_jitter([img, img.clone()], torch.Generator().manual_seed(3), AugmentConfig(color_p=1.0))
+    a1, a2 = color_jitter([img, img.clone()], torch.Generator().manual_seed(3), AugmentConfig(jitter_p=1.0))
     assert torch.equal(a1, a2) and not torch.allclose(a1, img)
-    b1, _ = color_jitter([img, img], torch.Generator().manual_seed(3), AugmentConfig(color_p=1.0))
+    b1, _ = color_jitter([img, img], torch.Generator().manual_seed(3), AugmentConfig(jitter_p=1.0))
     assert torch.equal(a1, b1)
     assert a1.min() >= 0 and a1.max() <= 1
-    same, _ = color_jitter([img, img], torch.Generator().manual_seed(3), AugmentConfig(color_p=0.0))
+    same, _ = color_jitter([img, img], torch.Generator().manual_seed(3), AugmentConfig(jitter_p=0.0))
     assert torch.equal(same, img)
 
 

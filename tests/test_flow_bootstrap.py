@@ -23,9 +23,9 @@ from f2depth.flow.bootstrap import (
     pretrain_chairs,
     zero_flow_heads,
 )
-from f2depth.flow.correlation import correlation
-from f2depth.flow.network import msra_init
-from f2depth.synth.chairs import ChairsSpec, texture_pool
+from f2depth.flow.chairs import ChairsSpec, texture_pool
+from f2depth.flow.net.correlation import correlation
+from f2depth.flow.net.network import msra_init
 
 
 def small_config(data_changes: dict | None = None, **changes) -> BootstrapConfig:

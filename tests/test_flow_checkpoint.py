@@ -1,5 +1,5 @@
-"""Checkpoint import and our own format (f2depth.flow.checkpoint), with broken files made in tmp_path; other
-networks than PWC-Lite: tests/test_flow_network.py."""
+"""Checkpoint import and our own format (f2depth.flow.net.checkpoint), with broken files made in tmp_path;
+other networks than PWC-Lite: tests/test_flow_network.py."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from f2depth.flow import PWCLite
-from f2depth.flow.checkpoint import (
+from f2depth.flow.net.checkpoint import (
     CheckpointError,
     load_flow_model,
     read_flow_checkpoint,
@@ -156,7 +156,7 @@ def test_own_format_wrong_kind_or_version(tmp_path):
 
 
 def test_a_stage_given_a_bad_flow_checkpoint_ends_with_one_line(tmp_path, capsys):
-    from f2depth.flow.checkpoint import load_flow_model
+    from f2depth.flow.net.checkpoint import load_flow_model
     from f2depth.stage import run_stage
 
     depth_model = tmp_path / "seed0.pt"

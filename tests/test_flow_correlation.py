@@ -1,11 +1,11 @@
-"""The PWC-Lite cost volume (f2depth.flow.correlation): semantics, gradients, both inputs, odd sizes."""
+"""The PWC-Lite cost volume (f2depth.flow.net.correlation): semantics, gradients, both inputs, odd sizes."""
 
 from __future__ import annotations
 
 import pytest
 import torch
 
-from f2depth.flow.correlation import correlation, correlation_reference
+from f2depth.flow.net.correlation import correlation, correlation_reference
 
 
 def _explicit(f1: torch.Tensor, f2: torch.Tensor, b: int, y: int, x: int, dy: int, dx: int) -> float:

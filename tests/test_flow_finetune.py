@@ -19,9 +19,7 @@ import torch
 import yaml
 
 from f2depth.camera import crop_resize_intrinsics
-from f2depth.data.prepared import PreparedSet
 from f2depth.flow.augment import augment_batch
-from f2depth.flow.checkpoint import load_flow_model, save_flow_model
 from f2depth.flow.evaluation import evaluate_gt_pairs
 from f2depth.flow.finetune import (
     FinetuneConfig,
@@ -31,8 +29,10 @@ from f2depth.flow.finetune import (
     train_step,
 )
 from f2depth.flow.finetune_data import FlowPairs, collate, gt_pair, gt_pairs, split_pairs, true_intrinsics
-from f2depth.flow.network import FlowNetwork
-from f2depth.flow.pwclite import PWCLite
+from f2depth.flow.net.checkpoint import load_flow_model, save_flow_model
+from f2depth.flow.net.network import FlowNetwork
+from f2depth.flow.net.pwclite import PWCLite
+from f2depth.formats.prepared import PreparedSet
 from f2depth.keypoints.store import KeypointFile, save_keypoints
 from f2depth.params import ParamsError
 
@@ -388,7 +388,7 @@ def test_a_depth_model_as_the_pretrained_flow_is_one_line(prepared, tmp_path, mo
     one line through run_stage) naming the file, before anything is trained."""
     import inference_data
 
-    from f2depth.data.errors import CheckpointError, DataError
+    from f2depth.errors import CheckpointError, DataError
 
     monkeypatch.chdir(tmp_path)
     monkeypatch.setenv("F2DEPTH_MLFLOW", "0")

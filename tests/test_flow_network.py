@@ -1,7 +1,7 @@
-"""The flow-network interface (f2depth.flow.network) and its registry (f2depth.flow.checkpoint.NETWORKS): a
-second network, registered for the test only, goes through the checkpoint, the `flow_pretrain` stage, the
-frozen teacher of depth training, fine-tuning and evaluation, none of which names PWC-Lite (the walk-through
-"Swapping the flow network" of docs/flow_finetune.md)."""
+"""The flow-network interface (f2depth.flow.net.network) and its registry
+(f2depth.flow.net.checkpoint.NETWORKS): a second network, registered for the test only, goes through the
+checkpoint, the `flow_pretrain` stage, the frozen teacher of depth training, fine-tuning and evaluation, none
+of which names PWC-Lite (the walk-through "Swapping the flow network" of docs/flow_finetune.md)."""
 
 from __future__ import annotations
 
@@ -14,11 +14,11 @@ import train_fakes
 from test_flow_pretrain import run_stage
 from torch import nn
 
-from f2depth.data.prepared import PreparedSet
 from f2depth.flow import NETWORKS, CheckpointError, FlowNetwork, PWCLite, build_network, load_flow_model
-from f2depth.flow.checkpoint import read_flow_checkpoint, save_flow_model
 from f2depth.flow.finetune import FinetuneConfig, finetune
 from f2depth.flow.finetune_data import FlowPairs, gt_pairs
+from f2depth.flow.net.checkpoint import read_flow_checkpoint, save_flow_model
+from f2depth.formats.prepared import PreparedSet
 from f2depth.keypoints import KeypointFile
 from f2depth.train.teacher import FlowTeacher
 
@@ -93,7 +93,7 @@ def test_unregistered_networks_are_named_in_the_error(tmp_path):
         save_flow_model(tmp_path / "flow.pt", TinyFlow())
     torch.save({"format": "f2depth.flow", "version": 2, "network": "tiny", "network_kwargs": {},
                 "state_dict": TinyFlow().state_dict()}, tmp_path / "flow.pt")
-    with pytest.raises(CheckpointError, match=r"'tiny' is not in f2depth\.flow\.checkpoint\.NETWORKS"):
+    with pytest.raises(CheckpointError, match=r"'tiny' is not in f2depth\.flow\.net\.checkpoint\.NETWORKS"):
         load_flow_model(tmp_path / "flow.pt")
 
 

@@ -16,11 +16,11 @@ import torch
 import train_fakes
 import yaml
 
-from f2depth.data.sintel import list_pairs, write_flo
 from f2depth.epochs import load_state
 from f2depth.flow import FlowNetwork, PWCLite, bootstrap, load_flow_model
 from f2depth.flow.pretrain import HISTORY_COLUMNS, PretrainConfig, clear_resume, pretrain, run_fingerprint
 from f2depth.flow.validate import evaluate_sintel
+from f2depth.formats.sintel import list_pairs, write_flo
 from f2depth.params import ParamsError
 
 HW = (40, 56)

@@ -1,4 +1,4 @@
-"""PWC-Lite (f2depth.flow.pwclite): ARFlow's parameter names, exact outputs, sizes, features."""
+"""PWC-Lite (f2depth.flow.net.pwclite): ARFlow's parameter names, exact outputs, sizes, features."""
 
 from __future__ import annotations
 

@@ -118,8 +118,8 @@ def test_flow_finetune_killed_with_9_resumes_to_the_same_weights(tmp_path):
     run's (the per-epoch state is written atomically and shuffling is seeded by (seed, epoch))."""
     from test_flow_finetune import write_fake_prepared, write_stage_params
 
-    from f2depth.flow.checkpoint import load_flow_model, save_flow_model
-    from f2depth.flow.pwclite import PWCLite
+    from f2depth.flow.net.checkpoint import load_flow_model, save_flow_model
+    from f2depth.flow.net.pwclite import PWCLite
 
     env = {**os.environ, "F2DEPTH_MLFLOW": "0", "OMP_NUM_THREADS": "1"}
     command = [sys.executable, str(ROOT / "stages" / "flow_finetune.py"), "--loss", "patch"]
@@ -208,7 +208,7 @@ def test_flow_pretrain_killed_with_9_resumes_to_the_same_weights(tmp_path):
     again: the teacher equals an uninterrupted run's, bit for bit."""
     from test_flow_pretrain import STAGE, tiny_chairs, write_stage_inputs
 
-    from f2depth.flow.checkpoint import load_flow_model
+    from f2depth.flow.net.checkpoint import load_flow_model
 
     env = {**os.environ, "F2DEPTH_MLFLOW": "0", "OMP_NUM_THREADS": "1"}
     chairs = {**tiny_chairs(), "feature_epochs": 1, "epochs": 3, "steps_per_epoch": 3, "average_epochs": 2}
@@ -237,9 +237,9 @@ def test_flow_pretrain_killed_with_9_resumes_to_the_same_weights(tmp_path):
 
 @pytest.mark.parametrize("kind", ["depth", "flow"])
 def test_a_truncated_model_file_is_one_line(ckpt, tmp_path, capfd, kind):
-    from f2depth.data.errors import CheckpointError
-    from f2depth.flow.checkpoint import load_flow_model, save_flow_model
-    from f2depth.flow.pwclite import PWCLite
+    from f2depth.errors import CheckpointError
+    from f2depth.flow.net.checkpoint import load_flow_model, save_flow_model
+    from f2depth.flow.net.pwclite import PWCLite
 
     if kind == "depth":
         whole = Path(ckpt).read_bytes()
@@ -266,7 +266,7 @@ def test_twelve_hundred_images_stream_in_bounded_memory(ckpt, tmp_path):
 
     from f2depth.inference.backends import TorchBackend
     from f2depth.inference.predict import Predictor, PredictSettings, run_predict
-    from f2depth.inference.sources import open_source
+    from f2depth.ingest.sources import open_source
 
     folder = tmp_path / "in"
     folder.mkdir()

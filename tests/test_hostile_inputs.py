@@ -22,7 +22,7 @@ from pose_scenes import camera_path, render
 from f2depth import io as io_mod
 from f2depth import params as P
 from f2depth.cli import main
-from f2depth.data.errors import DataError
+from f2depth.errors import DataError
 from f2depth.ingest.camera_files import read_camera_file
 from f2depth.ingest.selfcal import estimate_focal
 from f2depth.stage import run_stage
@@ -188,7 +188,7 @@ def test_evaluate_probes_its_outputs_before_scoring(tmp_path, monkeypatch):
     import yaml
     from test_stage_evaluate import load_stage
 
-    import f2depth.data.writable as writable
+    import f2depth.formats.writable as writable
 
     stage = load_stage()
     params = tmp_path / "params.yaml"

@@ -14,7 +14,7 @@ import train_fakes
 import yaml
 
 from f2depth import params as P
-from f2depth.data.errors import DataError
+from f2depth.errors import DataError
 from f2depth.stage import run_stage
 from f2depth.train.distributed import DistContext
 from f2depth.train.settings import settings_from_params
@@ -124,7 +124,7 @@ def test_a_depth_model_named_as_the_flow_teacher_is_one_line(setup, tmp_path):
     traceback. Now a DataError (one line through run_stage) naming the file and the fix."""
     import inference_data
 
-    from f2depth.data.errors import CheckpointError
+    from f2depth.errors import CheckpointError
     from f2depth.train.run import train_variant
 
     _, path = setup

@@ -10,7 +10,7 @@ import onnx
 import pytest
 import torch
 
-from f2depth.data.errors import DataError
+from f2depth.errors import DataError
 from f2depth.inference.backends import OnnxBackend, TorchBackend, load_depth_model
 from f2depth.inference.export import ExportError, export_onnx
 from f2depth.inference.predict import Predictor

@@ -8,13 +8,12 @@ import inference_data
 import numpy as np
 import pytest
 
+from f2depth.camera import default_intrinsics, intrinsics
 from f2depth.inference.outputs import (
     MM_MAX,
     SUFFIXES,
     colorize_depth,
-    default_intrinsics,
     depth_to_mm,
-    intrinsics,
     mm_clipped,
     write_frame,
 )
@@ -41,8 +40,8 @@ def test_mm_png_and_npy_agree(tmp_path):
 
 def test_depth_to_mm_never_writes_a_no_depth_code_for_a_depth():
     """Issue 53 item 5. Before: 70 m → 65535 (and 0.4 mm → 0), the codes that 7-Scenes-style readers (ours
-    too: f2depth.inference.scaling, f2depth.data.sevenscenes) take for "no depth". Now a depth is clipped to
-    [1, 65534] mm and reads back as a depth; 0, negative and NaN stay 0."""
+    too: f2depth.inference.scaling, f2depth.formats.sevenscenes) take for "no depth". Now a depth is clipped
+    to [1, 65534] mm and reads back as a depth; 0, negative and NaN stay 0."""
     depth = np.array([0.0, 0.0004, 0.0006, 1.2345, 65.534, 70.0, np.inf, -1.0, np.nan])
     mm = depth_to_mm(depth)
     np.testing.assert_array_equal(mm, [0, 1, 1, 1234, 65534, 65534, 65534, 0, 0])

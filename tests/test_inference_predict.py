@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 import torch
 
-from f2depth.data.errors import DataError
+from f2depth.errors import DataError
 from f2depth.inference.backends import TorchBackend, load_backend
 from f2depth.inference.predict import Predictor, PredictSettings, run_predict
 from f2depth.inference.scaling import median_ratio, read_reference_depth
-from f2depth.inference.sources import Frame, open_source
+from f2depth.ingest.sources import Frame, open_source
 from f2depth.io import OUTPUT_MARKER
 
 

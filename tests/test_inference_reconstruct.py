@@ -12,7 +12,7 @@ import inference_data
 import numpy as np
 import pytest
 
-from f2depth.data.errors import DataError
+from f2depth.errors import DataError
 from f2depth.inference.optional import MissingDependency, require
 from f2depth.inference.reconstruct import frame_scales
 from f2depth.inference.sequences import read_gt_npz, sevenscenes_sequence, synth_sequence

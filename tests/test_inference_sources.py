@@ -1,4 +1,4 @@
-"""Tests for f2depth.inference.sources: image, folder and video inputs, and their errors."""
+"""Tests for f2depth.ingest.sources: image, folder and video inputs, and their errors."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ import inference_data
 import numpy as np
 import pytest
 
-from f2depth.data.errors import DataError
-from f2depth.inference.sources import ImageSource, VideoSource, open_source
+from f2depth.errors import DataError
+from f2depth.ingest.sources import ImageSource, VideoSource, open_source
 
 
 def test_folder_sorted_unsupported_and_hidden_ignored(tmp_path):

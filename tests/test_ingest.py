@@ -16,10 +16,10 @@ from pose_scenes import camera_path, render
 
 from f2depth.camera import NYU_RAW_CAMERA, crop_resize_intrinsics, distortion_maps
 from f2depth.cli import main as cli_main
-from f2depth.data.errors import DataError
-from f2depth.data.nyu_raw import list_frames, raw_camera
 from f2depth.data.prepare import PrepareConfig, prepare
-from f2depth.data.prepared import PreparedSet
+from f2depth.errors import DataError
+from f2depth.formats.nyu_raw import list_frames, raw_camera
+from f2depth.formats.prepared import PreparedSet
 from f2depth.ingest.camera_files import (
     EXIF_FOCAL_35MM,
     EXIF_IFD,
@@ -367,7 +367,7 @@ def test_a_rotated_phone_video_is_ingested_upright(clip, tmp_path):
 
 def test_a_rotation_the_decoder_does_not_apply_is_said(clip, tmp_path, monkeypatch):
     """Where OpenCV's backend does not turn the frames, ingest says so in one warning line."""
-    from f2depth.inference import sources
+    from f2depth.ingest import sources
 
     video = _rotated_mp4(tmp_path / "sideways.mp4", clip[3])
     plain_init = sources.VideoSource.__init__

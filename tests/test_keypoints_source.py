@@ -19,9 +19,9 @@ import pytest
 import yaml
 
 from f2depth.camera import NYU_RGB_DIST, NYU_RGB_K
-from f2depth.data.errors import DataError
 from f2depth.data.prepare import PrepareConfig, SuperpixelParams, prepare
-from f2depth.data.prepared import PreparedSet
+from f2depth.errors import DataError
+from f2depth.formats.prepared import PreparedSet
 from f2depth.keypoints import select_pixels
 from f2depth.keypoints.extract import extract_keypoints
 from f2depth.keypoints.store import KeypointFile

@@ -14,20 +14,23 @@ import dvc_deps  # noqa: E402
 
 LAYERS: tuple[tuple[str, ...], ...] = (
     ("threads",),  # the CPUs a process may use (the process pools of `workers` keep to them)
-    # primitives: geometry, cameras, parameters, files, tracking, superpixels
+    # primitives: numbers, files, parameters, geometry, cameras, tracking, superpixels, the errors
     ("numbers", "io", "params", "precision", "workers", "processes", "data_parallel", "tracking", "colour",
-     "geometry", "camera", "superpixels", "signals"),
+     "geometry", "camera", "superpixels", "signals", "errors", "lazy"),
     ("epochs", "profile", "averaging"),  # the one training-loop skeleton, profiling, weight averaging
-    ("data",),  # on-disk formats, loaders, the typed samples, the prepare stage
-    ("synth",),  # the embedded synthetic world (and the flow teacher's generated pairs)
-    ("keypoints", "poses"),  # DSO's selector; multi-view poses
-    ("flow",),  # PWC-Lite, its pretraining and fine-tuning
-    ("losses", "depth"),  # the terms of L_depth; DepthCNN and PoseCNN
-    ("eval",),  # scoring: metrics, the test-set protocols (training validates with NYU's)
+    ("formats",),  # the on-disk formats: every dataset's reader/writer and the prepared set's
+    ("synth",),  # the embedded synthetic world
+    ("ingest",),  # your own video → raw frames
+    ("data",),  # the prepare stage
+    ("keypoints",),  # DSO's selector
+    ("poses",),  # multi-view poses
+    ("flow",),  # PWC-Lite, its pretraining (and its generated pairs) and fine-tuning
+    ("losses", "depth"),  # the terms of L_depth; DepthCNN and PoseCNN, running them for evaluation
+    ("protocols",),  # the test sets' evaluation protocols and metrics (training validates with NYU's)
     ("train",),  # depth training
+    ("eval",),  # the evaluate stage: every protocol over a trained model, timing
     ("report",),  # the tables and figures, the paper's published numbers
     ("inference",),  # predict, export, reconstruct
-    ("ingest",),  # your own video → a prepared set
     ("cli", "stage"),  # entry points
 )  # fmt: skip
 
@@ -114,11 +117,11 @@ def test_a_planted_upward_import_and_a_planted_circle_are_found(tmp_path):
         (fake / "f2depth" / pkg).mkdir(parents=True)
         (fake / "f2depth" / pkg / "__init__.py").write_text("")
     (fake / "f2depth" / "__init__.py").write_text("")
-    (fake / "f2depth/data/loader.py").write_text("from f2depth.eval.metrics import compute\n")
-    (fake / "f2depth/eval/metrics.py").write_text(
-        "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from f2depth.eval.scoring import S\n"
+    (fake / "f2depth/data/loader.py").write_text("from f2depth.eval.suite import compute\n")
+    (fake / "f2depth/eval/suite.py").write_text(
+        "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from f2depth.eval.timing import S\n"
         "def compute():\n    from f2depth.data.loader import x\n")
-    (fake / "f2depth/eval/scoring.py").write_text("from f2depth.eval import metrics\n")
+    (fake / "f2depth/eval/timing.py").write_text("from f2depth.eval import suite\n")
     assert layer_violations(fake) == [
-        "f2depth.data.loader imports f2depth.eval.metrics: 'eval' is not below 'data'"]
-    assert cycles(fake) == [["f2depth.data.loader", "f2depth.eval.metrics", "f2depth.data.loader"]]
+        "f2depth.data.loader imports f2depth.eval.suite: 'eval' is not below 'data'"]
+    assert cycles(fake) == [["f2depth.data.loader", "f2depth.eval.suite", "f2depth.data.loader"]]

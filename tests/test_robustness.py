@@ -20,22 +20,22 @@ import train_fakes
 
 from f2depth import params as P
 from f2depth.cli import main
-from f2depth.data import writable as writable_mod
-from f2depth.data.errors import DataError
-from f2depth.data.images import MAX_PIXELS, header_hw, read_image
-from f2depth.data.samples import EvalSample
 from f2depth.depth import load_checkpoint
-from f2depth.eval import campus as campus_eval
-from f2depth.eval import nyu, sevenscenes
+from f2depth.errors import DataError
 from f2depth.flow import load_flow_model
-from f2depth.flow.checkpoint import CheckpointError
+from f2depth.flow.net.checkpoint import CheckpointError
+from f2depth.formats import writable as writable_mod
+from f2depth.formats.images import MAX_PIXELS, header_hw, read_image
+from f2depth.formats.samples import EvalSample
 from f2depth.inference import limits
 from f2depth.inference.backends import TorchBackend
 from f2depth.inference.predict import Predictor, PredictSettings, run_predict
 from f2depth.inference.sequences import read_gt_npz
-from f2depth.inference.sources import Frame
+from f2depth.ingest.sources import Frame
 from f2depth.io import OUTPUT_MARKER
 from f2depth.keypoints import KeypointFile, KeypointFileError, save_keypoints
+from f2depth.protocols import campus as campus_eval
+from f2depth.protocols import nyu, sevenscenes
 from f2depth.train.data import DataConfig, TupleDataset
 from f2depth.train.run import train_variant
 from f2depth.train.settings import settings_from_params

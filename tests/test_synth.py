@@ -16,8 +16,8 @@ import pytest
 import scipy.io
 
 from f2depth.camera import NYU_RGB_DIST, NYU_RGB_K
-from f2depth.data.nyu_labeled import scene_names
-from f2depth.data.sintel import read_flo
+from f2depth.formats.nyu_labeled import scene_names
+from f2depth.formats.sintel import read_flo
 from f2depth.params import ParamsError
 from f2depth.synth import OutputPaths, SynthConfig, generate, jobs, plan, writers
 from f2depth.synth.camera_path import PathStyle, handheld_path, rotation

@@ -10,8 +10,8 @@ import pytest
 import torch
 import torch.nn.functional as F
 
+from f2depth.flow.chairs import ChairsSpec, Layer, flow_truth, render_frames, render_pairs, texture_pool
 from f2depth.geometry import warp
-from f2depth.synth.chairs import ChairsSpec, Layer, flow_truth, render_frames, render_pairs, texture_pool
 
 
 def spec(**kw) -> ChairsSpec:
@@ -108,7 +108,7 @@ def test_the_topmost_layer_shows_and_each_pair_composes_only_its_own_layers(pool
 def test_frames_equal_every_layer_sampled_whole_and_composited_in_order(pool):
     """Sampling each position only in its topmost layer's texture gives, bit for bit, the plain painter's
     composite: every layer sampled over the whole frame, later layers pasted over earlier ones."""
-    from f2depth.synth.chairs import _texture_theta, draw_layers, inside, layer_matrix
+    from f2depth.flow.chairs import _texture_theta, draw_layers, inside, layer_matrix
 
     s = spec(supersample=2)
     scenes = [draw_layers(s, np.random.default_rng([4, i]), len(pool)) for i in range(5)]

@@ -7,8 +7,9 @@ import pytest
 import torch
 import train_fakes
 
-from f2depth.data.prepared import PreparedSet
+from f2depth.colour import AugmentConfig
 from f2depth.epochs import sample_generator as generator
+from f2depth.formats.prepared import PreparedSet
 from f2depth.keypoints import KeypointFile, save_keypoints
 from f2depth.train import augment as A
 from f2depth.train.data import (
@@ -122,7 +123,7 @@ def test_one_jitter_draw_for_all_frames(dataset):
 
 
 def test_draw_ranges_and_rate():
-    cfg = A.AugmentConfig()
+    cfg = AugmentConfig()
     g = torch.Generator().manual_seed(0)
     draws = [A.draw(cfg, g) for _ in range(400)]
     assert 0.4 < np.mean([d.flip for d in draws]) < 0.6 and 0.4 < np.mean([d.jitter for d in draws]) < 0.6

@@ -10,9 +10,9 @@ import torch
 import train_fakes
 from torch import nn
 
-from f2depth.data.prepared import PreparedSet
 from f2depth.depth import DepthModel, DepthModelConfig
 from f2depth.flow import PWCLite
+from f2depth.formats.prepared import PreparedSet
 from f2depth.geometry import axis_angle_to_matrix, make_transform
 from f2depth.train.diagnostics import (
     DIAGNOSTIC_KEYS,
@@ -146,7 +146,7 @@ def test_teacher_epe_is_zero_for_the_exact_flow_and_zero_flows_for_zeros(prepare
     """The teacher's EPE on the training pairs: the exact rigid flow scores 0, a zero field scores what
     zero flow scores (the fake camera's 5 cm step moves the pixels), in one batch or in several."""
     truth = TrainTruth.from_prepared(prepared)
-    exact, valid = truth.exact_flow()
+    exact, valid = truth.exact_flow
     assert exact.shape == (4, 2, 64, 64) and valid.shape == (4, 1, 64, 64) and valid.any()
     perfect = teacher_epe(_FlowOf(exact), truth, batch_size=3)
     assert perfect["teacher"] == pytest.approx(0.0, abs=1e-6) and perfect["zero_flow"] > 0.5

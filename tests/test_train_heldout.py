@@ -17,9 +17,9 @@ import train_fakes
 from depth_scenes import plane_scene
 
 from f2depth import params as P
-from f2depth.data.errors import DataError
-from f2depth.data.prepared import PreparedSet
 from f2depth.depth import DepthModel, DepthModelConfig
+from f2depth.errors import DataError
+from f2depth.formats.prepared import PreparedSet
 from f2depth.keypoints import save_keypoints
 from f2depth.train.heldout import HeldOutValidator
 from f2depth.train.run import train_variant

@@ -13,8 +13,8 @@ import train_fakes
 import yaml
 
 from f2depth import params as P
-from f2depth.data.prepared import PreparedSet
 from f2depth.depth import DepthModel, DepthModelConfig
+from f2depth.formats.prepared import PreparedSet
 from f2depth.geometry import invert_pose, pose_from_params
 from f2depth.poses.estimate import PairPrior, PosesConfig, ScenePoses
 from f2depth.poses.store import PosePriors, write_poses

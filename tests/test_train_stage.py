@@ -13,8 +13,8 @@ import train_fakes
 import yaml
 
 from f2depth import params as P
-from f2depth.data.errors import DataError
 from f2depth.depth import load_checkpoint, read_checkpoint
+from f2depth.errors import DataError
 from f2depth.io import OUTPUT_MARKER
 from f2depth.train.settings import settings_from_params
 from f2depth.train.step import TERMS, WEIGHT_KEYS
@@ -204,7 +204,7 @@ def test_repository_variants_are_consistent_with_dvc_yaml():
 def test_an_unwritable_metrics_folder_ends_the_stage_before_any_training(setup, monkeypatch):
     """Before: the stage trained, replaced the models, deleted the resume state and then crashed on the
     metrics folder, so a re-run retrained from scratch. Now every output location is probed first."""
-    import f2depth.data.writable as writable
+    import f2depth.formats.writable as writable
     import f2depth.train.run as run_module
 
     root, path = setup

@@ -15,9 +15,9 @@ import pytest
 import yaml
 
 from f2depth.camera import NYU_RAW_CAMERA
-from f2depth.data.errors import DataError
-from f2depth.data.nyu_raw import list_frames, read_frame
 from f2depth.data.training_video import training_video
+from f2depth.errors import DataError
+from f2depth.formats.nyu_raw import list_frames, read_frame
 from f2depth.ingest.camera_files import read_camera_file
 from f2depth.io import OUTPUT_MARKER
 from f2depth.synth import OutputPaths, SynthConfig, generate

@@ -6,9 +6,14 @@
 A stage's code deps are its script and every ``f2depth`` file the script reaches through imports: at module
 level or inside a function, through package ``__init__`` files (importing ``f2depth.a.b`` runs
 ``f2depth/a/__init__.py``), never through imports under ``if TYPE_CHECKING:`` (they do not run).
-``f2depth/__init__.py`` holds the version string only and is no dep. Each stage's deps list keeps its
-data deps (datasets, models, the metrics a stage reads) and their comments first; the generated code deps
-follow one marker comment. ``params`` moves above ``deps``, so that a stage opens with what a user edits.
+``f2depth/__init__.py`` holds the version string only and is no dep.
+
+Each stage's ``params`` and ``deps`` are written as flow lists (``deps: [...]``): the data deps (datasets,
+models, the metrics a stage reads) in their order, then the script, then the library files, sorted, with each
+folder whose every file the script imports written once as the folder (``f2depth/train/``; .dvcignore keeps
+``__pycache__`` out of DVC's hash). A folder with one file the script does not import is listed file by file,
+so that a new module re-runs no stage until one imports it. Comments of the two blocks go above their key;
+``params`` moves above ``deps``, so that a stage opens with what a user edits.
 
 train_depth's ``foreach`` items are written from params.yaml ``variants``: the flow model DVC tracks (the
 stage script for a variant without one) and, per term of L_depth (``f2depth.train.step.TERMS``), the
@@ -20,6 +25,7 @@ the variants that use L_feature.
 from __future__ import annotations
 
 import ast
+import json
 import re
 import sys
 from collections.abc import Iterable
@@ -27,7 +33,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE_ROOT = "f2depth/__init__.py"
-MARKER = "# library files the script imports: written by tools/dvc_deps.py --write"
+OLD_MARKER = "# library files the script imports: written by tools/dvc_deps.py --write"
+WIDTH = 120  # the flow lists' line length
 CODE_PREFIXES = ("stages/", "f2depth/")
 KEY_ORDER = ("cmd", "params", "deps", "outs", "metrics", "plots")
 
@@ -126,6 +133,31 @@ def is_code(dep: str) -> bool:
     return dep.startswith(CODE_PREFIXES) and "${" not in dep
 
 
+def files_under(folder: Path, root: Path = ROOT) -> set[str]:
+    """Every file DVC hashes for a folder dep (.dvcignore leaves out ``__pycache__``), relative to root."""
+    return {p.relative_to(root).as_posix() for p in folder.rglob("*")
+            if p.is_file() and "__pycache__" not in p.relative_to(folder).parts}
+
+
+def folded(files: Iterable[str], root: Path = ROOT) -> list[str]:
+    """``files`` with each folder below ``f2depth/`` whose every file is among them written once, as the
+    folder (``f2depth/train/``): the outermost such folder, sorted with the single files."""
+    have, covered, entries = set(files), set(), []
+    folders = {Path(f).parent.as_posix() for f in have if f.startswith("f2depth/")}
+    folders |= {p.as_posix() for f in folders for p in Path(f).parents}
+    for folder in sorted(folders - {"f2depth", "."}, key=lambda f: (f.count("/"), f)):
+        members = files_under(root / folder, root)
+        if not covered >= members and members <= have:
+            entries.append(folder + "/")
+            covered |= members
+    return sorted(entries + [f for f in have if f not in covered])
+
+
+def expanded(dep: str, root: Path = ROOT) -> set[str]:
+    """The files a code dep stands for: a folder's files, or the file itself."""
+    return files_under(root / dep, root) if (root / dep).is_dir() else {dep.rstrip("/")}
+
+
 def stage_scripts(dvc_yaml: Path) -> dict[str, str]:
     """Stage name → its script (``python stages/<x>.py …`` in ``cmd``)."""
     spec = _load_yaml(dvc_yaml)["stages"]
@@ -143,13 +175,19 @@ def declared_code_deps(dvc_yaml: Path) -> dict[str, list[str]]:
 
 
 def differences(root: Path = ROOT) -> list[str]:
-    """One line per missing or superfluous code dep of a stage (empty: dvc.yaml is exact)."""
+    """One line per missing or superfluous code dep of a stage (empty: dvc.yaml is exact). A folder is
+    superfluous when it holds a file the script does not import."""
     declared = declared_code_deps(root / "dvc.yaml")
     out = []
     for name, script in stage_scripts(root / "dvc.yaml").items():
-        want, have = code_deps(script, root), declared[name]
+        want = code_deps(script, root)
+        have = set().union(*(expanded(d, root) for d in declared[name]))
         out += [f"{name}: missing {d}" for d in want if d not in have]
-        out += [f"{name}: superfluous {d}" for d in have if d not in want]
+        for dep in declared[name]:
+            extra = sorted(expanded(dep, root) - set(want))
+            if extra:
+                out.append(f"{name}: superfluous {dep}" + (f" (holds {', '.join(extra)})"
+                                                           if (root / dep).is_dir() else ""))
     return out
 
 
@@ -179,45 +217,53 @@ def _blocks(lines: list[str], indent: int) -> list[tuple[str | None, list[str]]]
     return blocks
 
 
-def _deps_block(block: list[str], indent: int, code: Iterable[str]) -> list[str]:
-    """The ``deps:`` block with its data items (and their comments) kept, then the generated code deps."""
-    head = [line for line in block if _indent(line) == indent and line.strip().startswith("deps:")]
-    key_at = block.index(head[0])
-    comments, body, kept, pending = block[:key_at], block[key_at + 1:], [], []
-    item = " " * (indent + 2) + "- "
-    for line in body:
-        stripped = line.strip()
-        if stripped.startswith("#"):
-            pending.append(line)
-        elif line.startswith(item):
-            value = stripped[2:].split(" #")[0].strip()
-            if not is_code(value):
-                kept += pending + [line]
-            pending = []
-    code_lines = [" " * (indent + 2) + MARKER] + [f"{item}{d}" for d in code]
-    return comments + [head[0]] + kept + code_lines
+def _token(value: str) -> str:
+    """``value`` as an item of a YAML flow list: plain when it can be, else double-quoted."""
+    if not isinstance(value, str):
+        raise SystemExit(f"dvc.yaml: {value!r} is not a path or a params key: write it as one")
+    return value if re.fullmatch(r"[\w./@-]+", value) else json.dumps(value, ensure_ascii=False)
+
+
+def _flow_list(key: str, groups: list[list[str]], indent: int) -> list[str]:
+    """``key: [a, b, ...]`` wrapped at WIDTH, each group of items starting a new line."""
+    pad = " " * indent
+    lines, line = [], f"{pad}{key}: ["
+    tokens = [(i == 0, _token(v)) for group in groups for i, v in enumerate(group)]
+    for n, (starts_group, token) in enumerate(tokens):
+        piece = token + ("]" if n == len(tokens) - 1 else ",")
+        fresh = line.endswith("[")
+        if not fresh and (starts_group or len(line) + 1 + len(piece) > WIDTH):
+            lines.append(line)
+            line = pad + "  " + piece
+        else:
+            line += ("" if fresh else " ") + piece
+    return lines + [line if tokens else f"{pad}{key}: []"]
+
+
+def _comments(block: list[str], indent: int) -> list[str]:
+    """A block's comment lines (those of the old generated marker dropped), indented to go above its key."""
+    return [" " * indent + line.strip() for line in block
+            if line.strip().startswith("#") and line.strip() != OLD_MARKER]
 
 
 def _load_yaml(path: Path) -> dict:
-    """A YAML file read as f2depth reads every YAML (f2depth.params.load_yaml: aliases that expand to a
-    bomb are refused)."""
-    sys.path.insert(0, str(ROOT))
-    from f2depth.params import load_yaml
-
-    return load_yaml(path.read_text())
+    return _parse(path.read_text())
 
 
 def _variant_items(root: Path, indent: int) -> list[str]:
-    """train_depth's ``foreach`` mapping from params.yaml ``variants``."""
+    """train_depth's ``foreach`` mapping from params.yaml ``variants``, one flow mapping a variant."""
     variants = _load_yaml(root / "params.yaml")["variants"]
     pad = " " * indent
     lines = [f"{pad}foreach:"]
     for name, v in variants.items():
-        lines.append(f"{pad}  {name}:")
-        lines.append(f"{pad}    flow: {v.get('flow') or 'stages/train_depth.py'}")
+        items = {"flow": v.get("flow") or "stages/train_depth.py"}
         for term, weight_key in _weight_keys(root).items():
-            key = f"variants.{name}" if term in (v.get("without") or ()) else weight_key
-            lines.append(f"{pad}    {term}: {key}")
+            items[term] = f"variants.{name}" if term in (v.get("without") or ()) else weight_key
+        pairs = [f"{k}: {_token(x)}" for k, x in items.items()]
+        line = f"{pad}  {name}: {{" + ", ".join(pairs) + "}"
+        if len(line) > WIDTH:  # the weights on a line of their own
+            line = f"{pad}  {name}: {{{pairs[0]},\n{pad}    " + ", ".join(pairs[1:]) + "}"
+        lines.append(line)
     return lines
 
 
@@ -229,19 +275,20 @@ def _weight_keys(root: Path) -> dict[str, str]:
     return {term: WEIGHT_KEYS[term] for term in TERMS}
 
 
-def _term_params(block: list[str], root: Path) -> list[str]:
+def _term_params(params: list[str], root: Path) -> list[str]:
     """train_depth's ``params`` with one ``${item.<term>}`` per term of L_depth after ``variants.${key}``
     (the weights the variant trains with, named by its foreach item)."""
-    kept = [line for line in block if "${item." not in line]
-    at = next(i for i, line in enumerate(kept) if line.strip() == "- variants.${key}")
-    pad = " " * _indent(kept[at])
-    return kept[: at + 1] + [f"{pad}- ${{item.{t}}}" for t in _weight_keys(root)] + kept[at + 1:]
+    kept = [p for p in params if not str(p).startswith("${item.")]
+    at = kept.index("variants.${key}") + 1
+    return kept[:at] + [f"${{item.{t}}}" for t in _weight_keys(root)] + kept[at:]
 
 
 def rewrite(text: str, root: Path = ROOT) -> str:
-    """dvc.yaml ``text`` with every stage's code deps generated, ``params`` before ``deps`` and
-    train_depth's ``foreach`` items written from params.yaml."""
+    """dvc.yaml ``text`` with every stage's ``params`` and ``deps`` written as flow lists (the deps: data,
+    then the script and the library it imports, folded), ``params`` before ``deps`` and train_depth's
+    ``foreach`` items written from params.yaml."""
     scripts = stage_scripts(root / "dvc.yaml")
+    spec = _parse(text)["stages"]
     lines = text.splitlines()
     start = lines.index("stages:") + 1
     end = next((i for i in range(start, len(lines)) if lines[i] and _indent(lines[i]) == 0
@@ -253,36 +300,50 @@ def rewrite(text: str, root: Path = ROOT) -> str:
             continue
         at = next(i for i, line in enumerate(block)
                   if _indent(line) == 2 and not line.strip().startswith("#"))
-        out += block[: at + 1] + _stage_body(name, block[at + 1:], scripts[name], root)
+        body = spec[name].get("do", spec[name])
+        out += block[: at + 1] + _stage_body(name, block[at + 1:], scripts[name], body, root)
     return "\n".join(out + lines[end:]) + "\n"
 
 
-def _stage_body(name: str, lines: list[str], script: str, root: Path) -> list[str]:
+def _parse(text: str) -> dict:
+    """YAML text read as f2depth reads every YAML (f2depth.params.load_yaml: aliases that expand to a bomb
+    are refused)."""
+    sys.path.insert(0, str(ROOT))
+    from f2depth.params import load_yaml
+
+    return load_yaml(text)
+
+
+def _stage_body(name: str, lines: list[str], script: str, body: dict, root: Path) -> list[str]:
     blocks = _blocks(lines, 4)
-    keys = [k for k, _ in blocks]
-    if "do" in keys:
-        out: list[str] = []
-        for key, block in blocks:
-            if key == "foreach" and name == "train_depth":
-                comments = [x for x in block if x.strip().startswith("#") and _indent(x) == 4]
-                out += comments + _variant_items(root, 4)
-            elif key == "do":
-                inner = _blocks(block[1:], 6)
-                if name == "train_depth":
-                    inner = [(k, _term_params(b, root) if k == "params" else b) for k, b in inner]
-                out += [block[0]] + _ordered(inner, 6, script, root)
-            else:
-                out += block
-        return out
-    return _ordered(blocks, 4, script, root)
-
-
-def _ordered(blocks: list[tuple[str | None, list[str]]], indent: int, script: str, root: Path) -> list[str]:
-    rank = {k: i for i, k in enumerate(KEY_ORDER)}
-    blocks = sorted(blocks, key=lambda b: rank.get(b[0], len(rank)))
+    if "do" not in [k for k, _ in blocks]:
+        return _ordered(name, blocks, 4, script, body, root)
     out: list[str] = []
     for key, block in blocks:
-        out += _deps_block(block, indent, code_deps(script, root)) if key == "deps" else block
+        if key == "foreach" and name == "train_depth":
+            out += _comments(block, 4) + _variant_items(root, 4)
+        elif key == "do":
+            out += [block[0]] + _ordered(name, _blocks(block[1:], 6), 6, script, body, root)
+        else:
+            out += block
+    return out
+
+
+def _ordered(name: str, blocks: list[tuple[str | None, list[str]]], indent: int, script: str, body: dict,
+             root: Path) -> list[str]:
+    rank = {k: i for i, k in enumerate(KEY_ORDER)}
+    out: list[str] = []
+    for key, block in sorted(blocks, key=lambda b: rank.get(b[0], len(rank))):
+        if key == "params":
+            params = _term_params(body["params"], root) if name == "train_depth" else body["params"]
+            out += _comments(block, indent) + _flow_list("params", [params], indent)
+        elif key == "deps":
+            data = [d for d in body["deps"] if not is_code(d)]
+            code = code_deps(script, root)
+            groups = [data + code[:1], folded(code[1:], root)]
+            out += _comments(block, indent) + _flow_list("deps", groups, indent)
+        else:
+            out += block
     return out
 
 

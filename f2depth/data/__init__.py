@@ -1,5 +1,4 @@
-"""Loaders of the on-disk datasets (``docs/formats.md``) and the ``prepare`` stage.
-
-Every loader validates what it reads and raises :class:`f2depth.data.errors.DataError` naming the
-file, the problem and the fix; nothing is skipped silently.
+"""The ``prepare`` stage: ``prepare`` (NYU raw video or an ingested one → the prepared training set) and
+``training_video`` (which raw video that is: ``train_source`` of params.yaml). The formats it reads and
+writes are ``f2depth.formats``.
 """

@@ -1,14 +1,15 @@
 """The ``prepare`` stage: NYU raw video → the prepared training set (``docs/formats.md``).
 
-Per training scene: raw RGB frames sorted by timestamp → every ``frame_step``-th → undistorted with the
-raw folder's camera (:func:`f2depth.data.nyu_raw.raw_camera`: NYU's RGB calibration, or an ingested
-video's ``camera.json``; ``cv2.undistort``, same K) → ``crop`` px cut from every side → resized to the
-training size (``interpolation``: ``lanczos`` = PIL's LANCZOS as P²Net, or ``area`` = INTER_AREA when
-shrinking; see ``f2depth.data.images.INTERPOLATIONS``). Frame tuples (target, prev, next) and pairs (t, t+1)
-are consecutive *sampled* frames of one scene. Felzenszwalb superpixels of every tuple target are
-computed on the prepared image as P²Net does (float image in [0, 1]; the colour distance is
-Euclidean, so RGB and P²Net's BGR give the same labels). Synthetic side-car ground truth, when
-present, is cropped like the image and resized with exact nearest-neighbour sampling.
+Per training scene: raw RGB frames sorted by timestamp → every ``frame_step``-th → undistorted with the raw
+folder's camera (:func:`f2depth.formats.nyu_raw.raw_camera`: NYU's RGB calibration, or an ingested video's
+``camera.json``; ``cv2.undistort``, same K) → ``crop`` px cut from every side → resized to the training size
+(``interpolation``: ``lanczos`` = PIL's LANCZOS as P²Net, or ``area`` = INTER_AREA when shrinking; see
+``f2depth.formats.images.INTERPOLATIONS``; the per-image steps are
+:func:`f2depth.formats.prepared.prepare_image`). Frame tuples (target, prev, next) and pairs (t, t+1) are
+consecutive *sampled* frames of one scene. Felzenszwalb superpixels of every tuple target are computed on the
+prepared image as P²Net does (float image in [0, 1]; the colour distance is Euclidean, so RGB and P²Net's BGR
+give the same labels). Synthetic side-car ground truth, when present, is cropped like the image and resized
+with exact nearest-neighbour sampling.
 
 With ``val_share`` > 0 the last ``val_share`` of each training scene's sampled frames (at least 3) are held
 out: their tuples go to ``val_tuples.csv`` (the photometric validation of ``train_depth``, for scenes without
@@ -34,15 +35,22 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import cv2
 import numpy as np
 
-from f2depth.camera import NYU_RAW_CAMERA, RawCamera, crop_resize_intrinsics, undistort_image
-from f2depth.data.errors import DataError
-from f2depth.data.images import INTERPOLATIONS, resize_rgb
-from f2depth.data.nyu_labeled import scenes_of_test_images
-from f2depth.data.nyu_raw import RawFrame, list_frames, list_scenes, raw_camera, read_frame
-from f2depth.data.prepared import FRAMES_HEADER, PAIRS_HEADER, TUPLES_HEADER, VAL_TUPLES
+from f2depth.camera import NYU_RAW_CAMERA, RawCamera, crop_resize_intrinsics
+from f2depth.errors import DataError
+from f2depth.formats.images import INTERPOLATIONS
+from f2depth.formats.nyu_labeled import scenes_of_test_images
+from f2depth.formats.nyu_raw import RawFrame, list_frames, list_scenes, raw_camera, read_frame
+from f2depth.formats.prepared import (
+    FRAMES_HEADER,
+    PAIRS_HEADER,
+    TUPLES_HEADER,
+    VAL_TUPLES,
+    crop_border,
+    prepare_image,
+    resize_image,
+)
 from f2depth.io import atomic_dir, csv_text, imwrite, save_npz, write_json, write_rgb, write_text
 from f2depth.superpixels import MIN_AREA, scaled_min_area
 from f2depth.workers import map_jobs
@@ -71,7 +79,7 @@ class PrepareConfig:
     p2net_cxcy_bug: bool = False
     superpixels: SuperpixelParams = field(default_factory=SuperpixelParams)
     workers: int = field(default=2, metadata={"min": 0})
-    interpolation: str = "lanczos"  # the shrinking filter of the images (f2depth.data.images.INTERPOLATIONS)
+    interpolation: str = "lanczos"  # shrinking filter of the images (f2depth.formats.images.INTERPOLATIONS)
     val_share: float = field(default=0.0, metadata={"min": 0, "max": 0.5})  # held-out end of each scene
 
     def __post_init__(self) -> None:
@@ -86,53 +94,9 @@ class PrepareConfig:
 
 # ---- per-image operations ---------------------------------------------------------------------------
 
-def crop_border(image: np.ndarray, crop: int) -> np.ndarray:
-    """Cut ``crop`` px from every side of an (H, W[, C]) array (a view)."""
-    h, w = image.shape[:2]
-    if crop < 0 or 2 * crop >= min(h, w):
-        raise ValueError(f"crop {crop} leaves nothing of a {h}×{w} image")
-    return image[crop:h - crop, crop:w - crop]
-
-
-def resize_image(image: np.ndarray, hw: tuple[int, int], nearest: bool = False,
-                 interpolation: str = "area") -> np.ndarray:
-    """Resize an (H, W[, C]) array to ``hw`` as prepare does.
-
-    Images: ``interpolation`` ``lanczos`` (PIL, uint8 RGB, as P²Net) or ``area`` (``INTER_AREA`` when
-    shrinking, bilinear otherwise). ``nearest=True`` (depth): exact nearest-neighbour on pixel centres
-    (``INTER_NEAREST_EXACT``; plain ``INTER_NEAREST`` is offset by up to half a source pixel, which would
-    misalign depth and image).
-    """
-    if interpolation == "lanczos" and not nearest:
-        return resize_rgb(image, hw, "lanczos")
-    if nearest:
-        interp = cv2.INTER_NEAREST_EXACT
-    elif hw[0] <= image.shape[0] and hw[1] <= image.shape[1]:
-        interp = cv2.INTER_AREA
-    else:
-        interp = cv2.INTER_LINEAR
-    return cv2.resize(np.ascontiguousarray(image), (hw[1], hw[0]), interpolation=interp)
-
-
 def crop_and_resize(image: np.ndarray, crop: int, hw: tuple[int, int], nearest: bool = False) -> np.ndarray:
     """Cut ``crop`` px from every side of an (H, W[, C]) array, then :func:`resize_image` it to ``hw``."""
     return resize_image(crop_border(image, crop), hw, nearest)
-
-
-def undistort_crop(raw_rgb: np.ndarray, crop: int, camera: RawCamera = NYU_RAW_CAMERA) -> np.ndarray:
-    """Distorted raw frame (``camera.hw``, 3) → undistorted RGB uint8 with ``crop`` px cut from every side,
-    at full resolution (NYU: (448, 608, 3) for crop 16): the image P²Net selects its keypoints on (its
-    ``datasets/nyu_dataset.py``). A camera without distortion (an ingested video) is only cropped."""
-    if raw_rgb.shape[:2] != tuple(camera.hw):
-        raise ValueError(f"a {raw_rgb.shape[:2]} frame for a camera of {camera.hw}")
-    undistorted = undistort_image(raw_rgb, camera.K, camera.dist) if np.any(camera.dist) else raw_rgb
-    return crop_border(undistorted, crop)
-
-
-def prepare_image(raw_rgb: np.ndarray, crop: int, hw: tuple[int, int], interpolation: str = "area",
-                  camera: RawCamera = NYU_RAW_CAMERA) -> np.ndarray:
-    """Distorted raw frame (``camera.hw``, 3) → undistorted, cropped, resized RGB uint8 (H, W, 3)."""
-    return resize_image(undistort_crop(raw_rgb, crop, camera), hw, interpolation=interpolation)
 
 
 def superpixels(rgb: np.ndarray, params: SuperpixelParams) -> np.ndarray:

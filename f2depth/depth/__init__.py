@@ -1,14 +1,12 @@
-"""DepthCNN + PoseCNN (Monodepth2 / P²Net architecture) with torchvision-compatible ResNet encoders."""
+"""DepthCNN + PoseCNN (Monodepth2 / P²Net architecture) with torchvision-compatible ResNet encoders;
+``predict`` runs a depth network for evaluation (disparity at a size, flip post-processing). The names below
+are imported from their module on first use, so importing one module of this package loads no other."""
 
-from f2depth.depth.decoder import disp_to_depth
-from f2depth.depth.model import (
-    DepthModel,
-    DepthModelConfig,
-    load_checkpoint,
-    model_from_checkpoint,
-    read_checkpoint,
-    save_checkpoint,
-)
+from f2depth.lazy import lazy_getattr
 
-__all__ = ["DepthModel", "DepthModelConfig", "disp_to_depth", "load_checkpoint", "model_from_checkpoint",
-           "read_checkpoint", "save_checkpoint"]
+_HOMES = {"disp_to_depth": "decoder", "DepthModel": "model", "DepthModelConfig": "model",
+          "load_checkpoint": "model", "model_from_checkpoint": "model", "read_checkpoint": "model",
+          "save_checkpoint": "model"}
+__all__ = sorted(_HOMES)
+
+__getattr__ = lazy_getattr(__name__, _HOMES)

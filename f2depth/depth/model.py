@@ -28,11 +28,11 @@ from typing import Any
 import torch
 from torch import nn
 
-from f2depth.data.errors import CheckpointError
 from f2depth.depth.decoder import UPSAMPLE_MODES, DepthDecoder, disp_to_depth, sigmoid_input_for_depth
 from f2depth.depth.encoder import ResnetEncoder
 from f2depth.depth.pose import PoseDecoder
 from f2depth.depth.resnet import BLOCKS, load_imagenet_resnet
+from f2depth.errors import CheckpointError
 from f2depth.geometry import MAX_DEPTH, MIN_DEPTH, invert_pose, pose_from_params
 from f2depth.io import damaged_weights, load_weights, torch_save, weights_digest
 
@@ -185,7 +185,7 @@ def save_checkpoint(path: str | os.PathLike, model: DepthModel, params: dict[str
 
 def read_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
     """Load and validate a depth checkpoint dict (format, version, keys); tensors on CPU. Every problem,
-    a missing file included, is a :class:`~f2depth.data.errors.CheckpointError` whose one line starts with
+    a missing file included, is a :class:`~f2depth.errors.CheckpointError` whose one line starts with
     the path and ends with the fix."""
     path = Path(path)
     if path.is_dir():

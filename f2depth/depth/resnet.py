@@ -13,7 +13,7 @@ from pathlib import Path
 import torch
 from torch import nn
 
-from f2depth.data.errors import CheckpointError
+from f2depth.errors import CheckpointError
 from f2depth.io import load_weights
 
 #: Blocks per stage for the supported depths (BasicBlock networks).

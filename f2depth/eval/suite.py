@@ -1,7 +1,7 @@
 """Every registered test set for one depth model, each without and with flip post-processing (PP), plus
 the inference time; and the mean over the seeds of a variant.
 
-The test sets are the protocols of ``f2depth.eval.registry``; this module runs the ones of
+The test sets are the protocols of ``f2depth.protocols.registry``; this module runs the ones of
 ``cfg.datasets`` with one set of settings (:class:`SuiteConfig`) and shapes their results into
 - ``headline``: ``{<name>: {metric: value}, <name>_pp: …, "ms": …, "ms_pp": …}`` (each protocol's headline:
   ``nyu`` and ``sevenscenes`` the mean over the test images, which is how the paper's 7-Scenes "Average" row
@@ -23,14 +23,14 @@ import cv2
 import numpy as np
 import torch
 
-from f2depth.data.samples import SampleSet
 from f2depth.depth.decoder import UPSAMPLE_MODES
-from f2depth.eval import registry
-from f2depth.eval.metrics import PredictDisp
-from f2depth.eval.protocol import Protocol
-from f2depth.eval.scoring import Kept, Settings
+from f2depth.depth.predict import PredictDisp
 from f2depth.eval.timing import time_inference
+from f2depth.formats.samples import SampleSet
 from f2depth.io import csv_text
+from f2depth.protocols import registry
+from f2depth.protocols.protocol import Protocol
+from f2depth.protocols.scoring import Kept, Settings
 
 DATASETS = registry.NAMES
 GROUPS = tuple(f"{d}{s}" for d in DATASETS for s in ("", "_pp"))

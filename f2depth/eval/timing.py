@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from f2depth.eval.metrics import PredictDisp, predict_disparity
+from f2depth.depth.predict import PredictDisp, predict_disparity
 
 
 def _synchronize(device: torch.device) -> None:

@@ -1,17 +1,16 @@
-"""Optical flow: the flow-network interface and its registry, ARFlow's PWC-Lite, its cost volume, census,
-unsupervised loss, checkpoints and evaluation (ARFlow, Liu et al., CVPR 2020; its code
-github.com/lliuz/ARFlow). The names below are imported from their module on first use, so importing one
-module of this package loads no other."""
+"""Optical flow (ARFlow, Liu et al., CVPR 2020; its code github.com/lliuz/ARFlow): ``net`` holds the network
+the frozen teacher of depth training needs (the flow-network interface and its registry, ARFlow's PWC-Lite,
+its cost volume, checkpoints); the rest trains and scores it: census, unsupervised loss, the patch loss,
+pretraining (``chairs`` generates its FlyingChairs-style pairs on the fly), fine-tuning and evaluation. The
+names below are imported from their module on first use, so importing one module of this package loads no
+other."""
 
-import importlib
+from f2depth.lazy import lazy_getattr
 
-_HOMES = {"NETWORKS": "checkpoint", "CheckpointError": "checkpoint", "build_network": "checkpoint",
-          "load_flow_model": "checkpoint", "read_flow_checkpoint": "checkpoint",
-          "save_flow_model": "checkpoint", "FlowNetwork": "network", "PWCLite": "pwclite"}
+_HOMES = {"NETWORKS": "net.checkpoint", "CheckpointError": "net.checkpoint",
+          "build_network": "net.checkpoint", "load_flow_model": "net.checkpoint",
+          "read_flow_checkpoint": "net.checkpoint", "save_flow_model": "net.checkpoint",
+          "FlowNetwork": "net.network", "PWCLite": "net.pwclite"}
 __all__ = sorted(_HOMES)
 
-
-def __getattr__(name: str):
-    if name not in _HOMES:
-        raise AttributeError(f"module 'f2depth.flow' has no attribute {name!r}")
-    return getattr(importlib.import_module(f"f2depth.flow.{_HOMES[name]}"), name)
+__getattr__ = lazy_getattr(__name__, _HOMES)

@@ -8,26 +8,17 @@ As in P²Net, the jittered images are only the *network input*; the loss compare
 flow ``f`` gives the flow ``(−u, v)`` mirrored; frames are never swapped, so the
 flow stays target → source. All randomness comes from the ``torch.Generator`` passed in.
 
-The jitter operations are ``f2depth.colour.adjust`` with MATLAB's grey weights (``GREY_MATLAB``).
+The recipe is ``f2depth.colour.AugmentConfig`` and ``f2depth.colour.jitter``, as the depth training's;
+here with MATLAB's grey weights (``GREY_MATLAB``). A sample's draws are float32 and made only when it is
+jittered (the depth training draws float64 numbers for every sample): each stream is the one that trained
+the committed models.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import torch
 
-from f2depth.colour import GREY_MATLAB, adjust
-
-
-@dataclass(frozen=True)
-class AugmentConfig:
-    color_p: float = 0.5
-    brightness: tuple[float, float] = (0.8, 1.2)
-    contrast: tuple[float, float] = (0.8, 1.2)
-    saturation: tuple[float, float] = (0.8, 1.2)
-    hue: tuple[float, float] = (-0.1, 0.1)
-    flip_p: float = 0.5
+from f2depth.colour import GREY_MATLAB, P2NET_AUGMENT, AugmentConfig, jitter
 
 
 def _uniform(lo_hi: tuple[float, float], gen: torch.Generator) -> float:
@@ -35,22 +26,18 @@ def _uniform(lo_hi: tuple[float, float], gen: torch.Generator) -> float:
     return lo + (hi - lo) * float(torch.rand((), generator=gen))
 
 
-def color_jitter(frames: list[torch.Tensor], gen: torch.Generator, cfg: AugmentConfig = AugmentConfig()
+def color_jitter(frames: list[torch.Tensor], gen: torch.Generator, cfg: AugmentConfig = P2NET_AUGMENT
                  ) -> list[torch.Tensor]:
-    """Jitter frames ``(B,3,H,W)`` in [0,1]; per sample, with probability ``color_p``, one draw of the four
+    """Jitter frames ``(B,3,H,W)`` in [0,1]; per sample, with probability ``jitter_p``, one draw of the four
     factors and of their order, shared by all frames of that sample. Returns new tensors."""
     out = [f.clone() for f in frames]
     for i in range(frames[0].shape[0]):
-        if float(torch.rand((), generator=gen)) >= cfg.color_p:
+        if float(torch.rand((), generator=gen)) >= cfg.jitter_p:
             continue
-        ops = [("brightness", _uniform(cfg.brightness, gen)), ("contrast", _uniform(cfg.contrast, gen)),
-               ("saturation", _uniform(cfg.saturation, gen)), ("hue", _uniform(cfg.hue, gen))]
+        factors = [_uniform(lo_hi, gen) for lo_hi in cfg.ranges()]
         order = torch.randperm(4, generator=gen).tolist()
         for frame in out:
-            x = frame[i]
-            for k in order:
-                x = adjust(x, *ops[k], GREY_MATLAB)
-            frame[i] = x
+            frame[i] = jitter(frame[i], factors, order, GREY_MATLAB)
     return out
 
 
@@ -61,7 +48,7 @@ def hflip_keypoints(keypoints: torch.Tensor, width: int) -> torch.Tensor:
     return out
 
 
-def augment_batch(batch: dict[str, torch.Tensor], gen: torch.Generator, cfg: AugmentConfig = AugmentConfig()
+def augment_batch(batch: dict[str, torch.Tensor], gen: torch.Generator, cfg: AugmentConfig = P2NET_AUGMENT
                   ) -> dict[str, torch.Tensor]:
     """Flip and jitter a batch ``{"img1", "img2" (B,3,H,W), "keypoints" (B,K,2), "keypoint_mask" (B,K)}``.
 

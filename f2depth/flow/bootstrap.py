@@ -19,7 +19,7 @@ on one image-independent field. The recipe:
 
 Every epoch is ``steps_per_epoch`` new batches drawn from a generator seeded by (seed, epoch), so a
 resumed run (``<resume_dir>/last.pt``, :mod:`f2depth.epochs`) sees exactly the batches of an unbroken one.
-Adam with ARFlow's betas and eps (:func:`f2depth.flow.network.make_optimizer`), no weight decay.
+Adam with ARFlow's betas and eps (:func:`f2depth.flow.net.network.make_optimizer`), no weight decay.
 """
 
 from __future__ import annotations
@@ -42,11 +42,12 @@ from f2depth.averaging import WeightAverage
 from f2depth.data_parallel import SINGLE, Group
 from f2depth.epochs import EpochLoop, epoch_rng
 from f2depth.epochs import fingerprint as hash_settings
-from f2depth.flow.correlation import MAX_DISPLACEMENT, correlation
-from f2depth.flow.evaluation import EPEAccumulator, endpoint_error
-from f2depth.flow.network import FlowNetwork, make_optimizer, msra_init
+from f2depth.flow.chairs import ChairsSpec, render_pairs
+from f2depth.flow.evaluation import EPEAccumulator
+from f2depth.flow.net.correlation import MAX_DISPLACEMENT, correlation
+from f2depth.flow.net.network import FlowNetwork, make_optimizer, msra_init
+from f2depth.geometry import endpoint_error
 from f2depth.precision import autocast
-from f2depth.synth.chairs import ChairsSpec, render_pairs
 
 #: history.csv: what every epoch measures (f2depth.epochs.write_history)
 HISTORY_COLUMNS = ("epoch", "phase", "loss", "matching", "top1_s4", "top1_s8", "steps", "skipped_steps",

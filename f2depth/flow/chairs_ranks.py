@@ -16,11 +16,11 @@ import numpy as np
 import torch
 
 from f2depth import data_parallel, processes
-from f2depth.data.images import read_image
 from f2depth.flow.bootstrap import BootstrapConfig, heldout_pairs, pretrain_chairs
-from f2depth.flow.checkpoint import build_network
-from f2depth.flow.network import FlowNetwork
-from f2depth.synth.chairs import texture_pool
+from f2depth.flow.chairs import texture_pool
+from f2depth.flow.net.checkpoint import build_network
+from f2depth.flow.net.network import FlowNetwork
+from f2depth.formats.images import read_image
 
 
 def chairs_pool(cfg: BootstrapConfig, seed: int, frames: Sequence[str]) -> torch.Tensor:

@@ -39,11 +39,11 @@ import torch
 import torch.nn.functional as F
 
 from f2depth.colour import GREY_MATLAB, grey
-from f2depth.geometry import resize_flow
+from f2depth.geometry import endpoint_error, resize_flow
 
 if TYPE_CHECKING:
     from f2depth.flow.finetune_data import GTPair
-    from f2depth.flow.network import FlowNetwork
+    from f2depth.flow.net.network import FlowNetwork
 
 LOW_TEXTURE_THRESHOLD = 0.01
 LOW_TEXTURE_WINDOW = 7
@@ -63,11 +63,6 @@ def low_texture_mask(img: torch.Tensor, threshold: float = LOW_TEXTURE_THRESHOLD
                      window: int = LOW_TEXTURE_WINDOW) -> torch.Tensor:
     """``img (B,3,H,W)`` in [0,1] → bool ``(B,1,H,W)``: local RMS gradient below ``threshold``."""
     return gradient_energy(img, window) < threshold
-
-
-def endpoint_error(flow: torch.Tensor, gt: torch.Tensor) -> torch.Tensor:
-    """``flow, gt (B,2,H,W)`` pixels, x first → EPE ``(B,1,H,W)``."""
-    return (flow - gt).norm(dim=1, keepdim=True)
 
 
 class EPEAccumulator:

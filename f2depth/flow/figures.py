@@ -16,7 +16,7 @@ import torch
 from f2depth.colour import flow_to_color
 from f2depth.flow.evaluation import epe_stats
 from f2depth.flow.finetune_data import GTPair
-from f2depth.flow.network import FlowNetwork
+from f2depth.flow.net.network import FlowNetwork
 from f2depth.io import atomic_path
 
 

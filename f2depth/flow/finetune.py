@@ -43,7 +43,7 @@ from f2depth.flow.augment import augment_batch
 from f2depth.flow.evaluation import evaluate_gt_pairs
 from f2depth.flow.finetune_data import FlowPairs, GTPair, collate
 from f2depth.flow.loss import SINTEL_FT, FlowLossConfig, flow_loss
-from f2depth.flow.network import FlowNetwork, make_optimizer
+from f2depth.flow.net.network import FlowNetwork, make_optimizer
 from f2depth.flow.patch_loss import FinetuneLossConfig, finetune_loss
 from f2depth.precision import autocast, backward_and_step, full_precision, grad_scaler
 

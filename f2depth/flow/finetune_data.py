@@ -24,10 +24,10 @@ import numpy as np
 import torch
 
 from f2depth.camera import crop_resize_intrinsics
-from f2depth.data.images import to_tensor
-from f2depth.data.prepared import PairRecord, PreparedSet
 from f2depth.flow.evaluation import low_texture_mask
 from f2depth.flow.patch_loss import pad_keypoints
+from f2depth.formats.images import to_tensor
+from f2depth.formats.prepared import PairRecord, PreparedSet
 from f2depth.geometry import in_view_mask, occlusion_by_depth, relative_pose, rigid_flow
 from f2depth.keypoints.store import KeypointFile
 

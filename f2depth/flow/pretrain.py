@@ -30,12 +30,12 @@ from typing import Any
 
 import torch
 
-from f2depth.data.sintel import SintelPair, SintelPairs
 from f2depth.epochs import EpochLoop, clear_state, epoch_generator
 from f2depth.epochs import fingerprint as hash_settings
 from f2depth.flow.augment import flip_and_swap
 from f2depth.flow.loss import SINTEL_FT, SINTEL_RAW, flow_loss
-from f2depth.flow.network import FlowNetwork, make_optimizer, msra_init
+from f2depth.flow.net.network import FlowNetwork, make_optimizer, msra_init
+from f2depth.formats.sintel import SintelPair, SintelPairs
 from f2depth.precision import backward_and_step
 
 HISTORY_COLUMNS = ("epoch", "loss", "photometric", "smooth", "flow_mean", "noc_fraction", "steps",

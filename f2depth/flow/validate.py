@@ -1,5 +1,5 @@
 """Scoring a flow model against ground truth: Sintel-layout pairs (``.flo`` + occlusions), generated
-FlyingChairs-style pairs (f2depth.synth.chairs) and prepared frame pairs whose flow follows from
+FlyingChairs-style pairs (f2depth.flow.chairs) and prepared frame pairs whose flow follows from
 ground-truth depth and pose (rigid scene).
 
 Predictions are made at a chosen network size (frames area-resized) and the flow is resized back to the
@@ -19,17 +19,17 @@ import numpy as np
 import torch
 
 from f2depth.colour import flow_to_color
-from f2depth.data.images import to_tensor
-from f2depth.data.sintel import SintelPair, load_pair, resized_tensor
 from f2depth.flow.evaluation import (
     EPEAccumulator,
-    endpoint_error,
     evaluate_gt_pairs,
     flow_scores,
     low_texture_mask,
     score_pair,
 )
-from f2depth.flow.network import FlowNetwork
+from f2depth.flow.net.network import FlowNetwork
+from f2depth.formats.images import to_tensor
+from f2depth.formats.sintel import SintelPair, load_pair, resized_tensor
+from f2depth.geometry import endpoint_error
 
 
 def evaluate_sintel(model: FlowNetwork, pairs: Sequence[SintelPair], size: tuple[int, int] | None,
@@ -59,7 +59,7 @@ def evaluate_sintel(model: FlowNetwork, pairs: Sequence[SintelPair], size: tuple
 def evaluate_generated(model: FlowNetwork, pairs: Sequence[torch.Tensor], device: str = "cpu",
                        figure_dir: str | os.PathLike | None = None, figures: int = 0) -> dict:
     """EPE of ``model`` and of zero flow on generated pairs ``img1, img2 (n,3,H,W)``, ``flow (n,2,H,W)``,
-    ``occluded (n,1,H,W)`` (f2depth.synth.chairs.render_pairs), at their own size."""
+    ``occluded (n,1,H,W)`` (f2depth.flow.chairs.render_pairs), at their own size."""
     img1, img2, flow, occluded = pairs
     acc, zero = EPEAccumulator(), EPEAccumulator()
     chosen = set(np.linspace(0, len(img1) - 1, figures).round().astype(int).tolist()) if figures else set()
@@ -80,8 +80,8 @@ def evaluate_prepared(model: FlowNetwork, prepared_root: str | os.PathLike, max_
     set has no ground truth. Ground truth as the fine-tuning scores it (``finetune_data.gt_pair``: rigid
     flow of frame 1's depth under the relative pose with the geometric K; occluded = hidden in frame 2 or
     leaving the image; pixels without depth are not scored). The network runs at the prepared size."""
-    from f2depth.data.prepared import PreparedSet
     from f2depth.flow.finetune_data import gt_pairs, scored_pairs
+    from f2depth.formats.prepared import PreparedSet
 
     ds = PreparedSet(prepared_root)
     pairs = scored_pairs(ds, ds.pairs, max_pairs)

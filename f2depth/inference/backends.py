@@ -15,9 +15,9 @@ from typing import Any, Protocol
 import numpy as np
 import torch
 
-from f2depth.data.errors import CheckpointError, DataError
 from f2depth.depth import DepthModel, load_checkpoint
 from f2depth.depth.fused import cpu_layout, inference_copy
+from f2depth.errors import CheckpointError, DataError
 from f2depth.inference.optional import require
 from f2depth.params import resolve_device
 

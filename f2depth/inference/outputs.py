@@ -18,15 +18,12 @@ import cv2
 import numpy as np
 import torch
 
-from f2depth.camera import NYU_RGB_K, NYU_SIZE_HW
 from f2depth.geometry import backproject
 from f2depth.io import imwrite, save_npy, write_bytes
 
 SUFFIXES = {"mm": "_depth_mm.png", "npy": "_depth.npy", "color": "_depth_color.png", "ply": "_points.ply"}
 #: the largest depth a ``_depth_mm.png`` holds: 65535 is the "no depth" code of Kinect-style depth PNGs
 MM_MAX = 65534
-#: horizontal focal length per image width of the NYU Depth V2 RGB camera (the training data)
-NYU_FX_PER_WIDTH = float(NYU_RGB_K[0, 0]) / NYU_SIZE_HW[1]
 _PLY_DTYPE = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1"), ("green", "u1"),
                        ("blue", "u1")])
 
@@ -57,32 +54,6 @@ def colorize_depth(depth: np.ndarray, percentile: float = 95.0) -> np.ndarray:
     out = cv2.applyColorMap(grey, cv2.COLORMAP_MAGMA)
     out[~valid] = 0
     return out
-
-
-def default_intrinsics(height: int, width: int) -> np.ndarray:
-    """K (3,3) for an image of unknown camera: the horizontal field of view of the NYU Depth V2 RGB camera
-    (fx = fy = 0.811·W) and the principal point at the image centre ((W−1)/2, (H−1)/2)."""
-    f = NYU_FX_PER_WIDTH * width
-    return np.array([[f, 0.0, (width - 1) / 2.0], [0.0, f, (height - 1) / 2.0], [0.0, 0.0, 1.0]])
-
-
-def intrinsics(height: int, width: int, fx: float | None = None, fy: float | None = None,
-               cx: float | None = None, cy: float | None = None) -> np.ndarray:
-    """K (3,3) in pixels of a (height, width) image: the given values; fy defaults to fx, cx and cy to the
-    image centre; no fx (and no fy) → :func:`default_intrinsics`."""
-    if fx is None and fy is None:
-        K = default_intrinsics(height, width)
-    else:
-        fx = fx if fx is not None else fy
-        fy = fy if fy is not None else fx
-        K = np.array([[fx, 0.0, (width - 1) / 2.0], [0.0, fy, (height - 1) / 2.0], [0.0, 0.0, 1.0]])
-    if cx is not None:
-        K[0, 2] = cx
-    if cy is not None:
-        K[1, 2] = cy
-    if not (K[0, 0] > 0 and K[1, 1] > 0):
-        raise ValueError(f"focal lengths must be positive, got fx={K[0, 0]}, fy={K[1, 1]}")
-    return K
 
 
 def point_cloud(depth: np.ndarray, rgb: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

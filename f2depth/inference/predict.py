@@ -20,15 +20,16 @@ import torch
 from tqdm import tqdm
 
 from f2depth import threads
-from f2depth.data.errors import DataError
-from f2depth.data.writable import check_output_folder
-from f2depth.eval.inputs import batched, to_input
-from f2depth.eval.metrics import depth_from_disparity, predict_disparity, resize_disparity
+from f2depth.camera import intrinsics
+from f2depth.depth.predict import depth_from_disparity, predict_disparity, resize_disparity
+from f2depth.errors import DataError
+from f2depth.formats.writable import check_output_folder
 from f2depth.inference.backends import DepthBackend, size_mismatch
-from f2depth.inference.outputs import MM_MAX, SUFFIXES, intrinsics, mm_clipped, write_frame
+from f2depth.inference.outputs import MM_MAX, SUFFIXES, mm_clipped, write_frame
 from f2depth.inference.scaling import median_ratio, read_reference_depth
-from f2depth.inference.sources import Frame, decode_shortfall
+from f2depth.ingest.sources import Frame, decode_shortfall
 from f2depth.io import atomic_dir, folder_lock, write_json
+from f2depth.protocols.inputs import batched, to_input
 
 UPSAMPLE_MODES = ("bilinear", "nearest")
 #: The factors a depth may be multiplied by: the network's depth lies in 0.1–10 "metres", so a metric scale
@@ -49,7 +50,7 @@ class Predictor:
     """Relative depth of RGB images of any size with a :class:`DepthBackend`.
 
     ``post_process``: Monodepth's flip post-processing (the batch is run twice, plain and flipped, and
-    the disparities blended, ``f2depth.eval.metrics.flip_post_process``); ``upsample``: how the disparity
+    the disparities blended, ``f2depth.depth.predict.flip_post_process``); ``upsample``: how the disparity
     is resized back to the input size (bilinear or nearest).
     """
 
@@ -94,7 +95,7 @@ class Predictor:
 @dataclass
 class PredictSettings:
     """What ``run_predict`` writes. ``scale`` and ``scale_from`` exclude each other; ``ply`` writes point
-    clouds with ``K_args`` (fx, fy, cx, cy; None entries take defaults, see outputs.intrinsics)."""
+    clouds with ``K_args`` (fx, fy, cx, cy; None entries take defaults, see f2depth.camera.intrinsics)."""
 
     output_dir: Path
     batch_size: int = 4

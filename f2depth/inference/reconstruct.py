@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from f2depth.data.errors import DataError
+from f2depth.errors import DataError
 from f2depth.inference.optional import require
 from f2depth.inference.predict import Predictor
 from f2depth.inference.scaling import median_ratio

@@ -12,9 +12,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from f2depth.data.errors import DataError
-from f2depth.data.images import read_png16
-from f2depth.eval.metrics import median_scale
+from f2depth.errors import DataError
+from f2depth.formats.images import read_png16
+from f2depth.protocols.metrics import median_scale
 
 _FIX = "give a 16-bit PNG in millimetres (0 or 65535 = no depth) or a float .npy (H, W) in metres"
 

@@ -10,9 +10,9 @@ from pathlib import Path
 
 import numpy as np
 
-from f2depth.data.errors import DataError
-from f2depth.data.sevenscenes import SEVENSCENES_K, read_depth_mm, read_pose
-from f2depth.inference.sources import list_images, read_input_image
+from f2depth.errors import DataError
+from f2depth.formats.sevenscenes import SEVENSCENES_K, read_depth_mm, read_pose
+from f2depth.ingest.sources import list_images, read_input_image
 
 COLOR_SUFFIX = ".color.png"
 _FIX_GT = "regenerate it with `dvc repro synth`"

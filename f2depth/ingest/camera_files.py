@@ -3,7 +3,7 @@
 :func:`choose_camera` applies the order of docs/ingest.md: a camera file (our JSON/YAML, COLMAP's
 ``cameras.txt`` or an OpenCV calibration YAML) → ``fov`` (horizontal field of view in degrees) → the EXIF
 ``FocalLengthIn35mmFilm`` of the first image → the caller's ``fallback`` (ingest: self-calibration from the
-video, :mod:`f2depth.ingest.selfcal`) → a :class:`~f2depth.data.errors.DataError` asking for one of the first
+video, :mod:`f2depth.ingest.selfcal`) → a :class:`~f2depth.errors.DataError` asking for one of the first
 two. Every camera is at a stated resolution and must be the frames' (a camera file calibrated at
 another size is refused, not rescaled: a crop on the way would make a rescaled K silently wrong).
 
@@ -22,9 +22,8 @@ import cv2
 import numpy as np
 import yaml
 
-from f2depth.camera import RawCamera, undistorted_valid_share
-from f2depth.data.errors import DataError
-from f2depth.inference.outputs import intrinsics
+from f2depth.camera import RawCamera, intrinsics, undistorted_valid_share
+from f2depth.errors import DataError
 from f2depth.params import BoundedLoader, YamlBomb, load_yaml, short
 
 #: The 35 mm film frame (36 × 24 mm): its diagonal is what "35 mm equivalent" focal lengths refer to.

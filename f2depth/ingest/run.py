@@ -7,7 +7,7 @@ static camera, optional blur), undistorted with the camera (:mod:`f2depth.ingest
 file → ``fov`` → EXIF → self-calibration from the inputs themselves, :mod:`f2depth.ingest.selfcal`, a
 first pass over them), shrunk to at most ``max_side`` px on the long side and written as
 ``<out>/<scene>/r-<seconds>-<index>.png``. ``<out>/camera.json`` holds the intrinsics of those frames
-(no distortion left; :func:`f2depth.data.nyu_raw.raw_camera` reads it), ``<out>/scenes.txt`` the scenes
+(no distortion left; :func:`f2depth.formats.nyu_raw.raw_camera` reads it), ``<out>/scenes.txt`` the scenes
 (``prepare.train_scenes_file``), ``<out>/ingest.json`` what was kept and dropped per scene. The folder is
 built aside and swapped in at the end: a failed ingest leaves nothing that looks valid. The output may not
 be, hold or lie inside an input, and replaces only a folder that is empty or an earlier ingest's (its
@@ -28,20 +28,20 @@ import numpy as np
 from tqdm import tqdm
 
 from f2depth.camera import RawCamera, crop_resize_intrinsics
-from f2depth.data.errors import DataError
-from f2depth.data.nyu_raw import CAMERA_FILE
-from f2depth.data.prepare import prepare_image
-from f2depth.data.writable import check_apart
-from f2depth.inference.sources import (
+from f2depth.errors import DataError
+from f2depth.formats.nyu_raw import CAMERA_FILE
+from f2depth.formats.prepared import prepare_image
+from f2depth.formats.writable import check_apart
+from f2depth.ingest.camera_files import choose_camera
+from f2depth.ingest.select import FrameFilter
+from f2depth.ingest.selfcal import FocalEstimate, estimate_focal
+from f2depth.ingest.sources import (
     VIDEO_EXTENSIONS,
     Frame,
     decode_shortfall,
     image_files,
     open_source,
 )
-from f2depth.ingest.camera_files import choose_camera
-from f2depth.ingest.select import FrameFilter
-from f2depth.ingest.selfcal import FocalEstimate, estimate_focal
 from f2depth.io import atomic_dir, write_json, write_rgb, write_text
 
 MIN_KEPT = 3  # a scene gives a frame tuple (target, prev, next) from three kept frames

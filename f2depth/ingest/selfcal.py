@@ -44,9 +44,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from f2depth.camera import RawCamera
-from f2depth.data.errors import DataError
-from f2depth.inference.outputs import intrinsics
+from f2depth.camera import RawCamera, intrinsics
+from f2depth.errors import DataError
 from f2depth.ingest.select import analysis_grey, corners, tracked_corners
 
 ANALYSIS_SIDE = 640

@@ -6,15 +6,11 @@ W, generator)`` serve the losses (:mod:`~f2depth.keypoints.store`). See docs/key
 are imported from their module on first use, so importing one module of this package loads no other.
 """
 
-import importlib
+from f2depth.lazy import lazy_getattr
 
 _HOMES = {"select_pixels": "api", "KeypointSelector": "api", "rescale_points": "api",
           "PRESETS": "presets", "Preset": "presets", "get_preset": "presets", "KeypointFile": "store",
           "KeypointFileError": "store", "fill_up": "store", "save_keypoints": "store"}
 __all__ = sorted(_HOMES)
 
-
-def __getattr__(name: str):
-    if name not in _HOMES:
-        raise AttributeError(f"module 'f2depth.keypoints' has no attribute {name!r}")
-    return getattr(importlib.import_module(f"f2depth.keypoints.{_HOMES[name]}"), name)
+__getattr__ = lazy_getattr(__name__, _HOMES)

@@ -29,11 +29,10 @@ import cv2
 import numpy as np
 
 from f2depth.camera import NYU_RAW_CAMERA, RawCamera
-from f2depth.data.errors import DataError
-from f2depth.data.images import read_image
-from f2depth.data.nyu_raw import read_frame
-from f2depth.data.prepare import resize_image, undistort_crop
-from f2depth.data.prepared import PreparedSet
+from f2depth.errors import DataError
+from f2depth.formats.images import read_image
+from f2depth.formats.nyu_raw import read_frame
+from f2depth.formats.prepared import PreparedSet, resize_image, undistort_crop
 from f2depth.io import write_rgb
 from f2depth.keypoints.api import KeypointSelector
 from f2depth.keypoints.overlay import draw_keypoints

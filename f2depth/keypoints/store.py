@@ -1,7 +1,7 @@
 """Keypoint files (``data/keypoints/<split>.npz``, docs/formats.md) and the API the losses use.
 
 A file holds ``frame_ids`` (N,) int64 — the frame's row in the prepared set's frames.csv
-(:meth:`f2depth.data.prepared.PreparedSet.frame_index`) —, ``offsets`` (N+1,) int64 and ``points``
+(:meth:`f2depth.formats.prepared.PreparedSet.frame_index`) —, ``offsets`` (N+1,) int64 and ``points``
 (M, 3) int16 = x, y, level at the training resolution; frame i owns ``points[offsets[i]:offsets[i+1]]``.
 """
 
@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from f2depth.data.errors import DataError
+from f2depth.errors import DataError
 from f2depth.io import save_npz
 
 _FIX = "re-run `dvc repro keypoints`"

@@ -29,9 +29,9 @@ import cv2
 import numpy as np
 
 from f2depth.camera import NYU_RAW_CAMERA, RawCamera, undistort_image
-from f2depth.data.errors import DataError
-from f2depth.data.nyu_raw import list_frames, read_frame
-from f2depth.data.prepared import PreparedSet
+from f2depth.errors import DataError
+from f2depth.formats.nyu_raw import list_frames, read_frame
+from f2depth.formats.prepared import PreparedSet
 from f2depth.poses.reconstruct import ReconstructConfig, reconstruct
 from f2depth.poses.tracks import TrackerConfig, track_corners, valid_region
 from f2depth.workers import map_jobs

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from f2depth.data.prepared import PreparedSet
+from f2depth.formats.prepared import PreparedSet
 from f2depth.poses.estimate import PairPrior, ScenePoses
 
 

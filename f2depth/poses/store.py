@@ -15,13 +15,15 @@ import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from f2depth.data.errors import DataError
+from f2depth.errors import DataError
 from f2depth.io import atomic_dir, csv_text, write_json, write_text
-from f2depth.poses.estimate import PairPrior, PosesConfig, ScenePoses
+
+if TYPE_CHECKING:  # annotations only: reading the priors (train_depth) never loads the estimation code
+    from f2depth.poses.estimate import PairPrior, PosesConfig, ScenePoses
 
 FORMAT = "f2depth.poses"
 VERSION = 1

@@ -8,8 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
-from f2depth.eval import registry
 from f2depth.io import write_text
+from f2depth.protocols import registry
 from f2depth.report import figures
 from f2depth.report.paper_tables import OURS, P2NET, Table
 from f2depth.report.results import VariantResults

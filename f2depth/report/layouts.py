@@ -1,8 +1,8 @@
 """How the `tables` stage shows each test set besides NYU's paper tables: its columns in the variants
 overview and its per-scene table beside the paper's rows (``f2depth.report.published``).
 
-One :class:`Layout` per name of ``f2depth.eval.registry`` (tests/test_eval_registry.py checks that the
-two lists agree). The scoring side of a test set (``f2depth.eval.<name>``) knows nothing of this file, so
+One :class:`Layout` per name of ``f2depth.protocols.registry`` (tests/test_eval_registry.py checks that the
+two lists agree). The scoring side of a test set (``f2depth.protocols.<name>``) knows nothing of this file, so
 editing a caption or the paper's numbers re-runs `tables` only.
 """
 

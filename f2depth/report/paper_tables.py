@@ -6,7 +6,7 @@ bootstrap intervals (``f2depth.report.intervals``), the cells without PP of Tabl
 show the mean with its interval instead (``mean [lo, hi]``), and :func:`gap_table` lists every ablation gap
 as a paired difference (:func:`claims`: the ones whose interval excludes 0, as sentences). The paper's rows
 (``f2depth.report.published``) carry ``quoted: True`` and get the † marker. Tables 1, 5 and 6 are NYU's; the
-other test sets of ``f2depth.eval.registry`` bring their per-scene table (``f2depth.report.layouts``) and
+other test sets of ``f2depth.protocols.registry`` bring their per-scene table (``f2depth.report.layouts``) and
 their columns of the variants overview.
 
 Variant roles: ``full`` = F²Depth, ``baseline`` = our P²Net (no flow losses), ``no_feature`` = + L_rigid
@@ -22,11 +22,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from f2depth.eval import registry
-from f2depth.eval.metrics import METRIC_NAMES
-from f2depth.eval.protocol import Protocol
 from f2depth.io import write_text
 from f2depth.numbers import format_number
+from f2depth.protocols import registry
+from f2depth.protocols.metrics import METRIC_NAMES
+from f2depth.protocols.protocol import Protocol
 from f2depth.report import published
 from f2depth.report.intervals import Interval, Intervals, SetIntervals
 from f2depth.report.layouts import layout

@@ -7,7 +7,7 @@ Method names use Unicode (P²Net, F²Depth). All NYU rows are on the 654 officia
 per-image median scaling. 7-Scenes rows are with post-processing (the table's header says "+ PP");
 Campus rows are without.
 
-Metric keys follow ``f2depth.eval.metrics.METRIC_NAMES``; the paper reports no SqRel or RMS-log.
+Metric keys follow ``f2depth.protocols.metrics.METRIC_NAMES``; the paper reports no SqRel or RMS-log.
 """
 
 from __future__ import annotations
@@ -149,7 +149,8 @@ def table6() -> list[dict[str, Any]]:
 
 def sevenscenes(method: str = "F²Depth") -> list[dict[str, Any]]:
     """tab:tab7scenes rows of ``method`` (``F²Depth`` or ``P²Net``, both + PP): seven scenes then
-    ``Average`` (which matches the frame-weighted mean of the scene rows, see f2depth.eval.sevenscenes)."""
+    ``Average`` (which matches the frame-weighted mean of the scene rows, see
+    f2depth.protocols.sevenscenes)."""
     if method not in _SEVENSCENES:
         raise KeyError(f"tab:tab7scenes has no method {method!r}; use one of {sorted(_SEVENSCENES)}")
     rows = _SEVENSCENES[method].items()

@@ -23,9 +23,9 @@ from typing import Any
 
 import numpy as np
 
-from f2depth.eval import registry
-from f2depth.eval.metrics import METRIC_NAMES
 from f2depth.io import json_values
+from f2depth.protocols import registry
+from f2depth.protocols.metrics import METRIC_NAMES
 from f2depth.report.intervals import Interval, Intervals, Pair, load_set, point, summarize
 
 EPE_KEYS = ("epe_all", "epe_noc", "epe_low_texture")

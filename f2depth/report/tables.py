@@ -29,9 +29,9 @@ from typing import Any
 
 import numpy as np
 
-from f2depth.eval.metrics import METRIC_NAMES
 from f2depth.io import write_text
 from f2depth.numbers import format_number
+from f2depth.protocols.metrics import METRIC_NAMES
 from f2depth.report.intervals import Interval
 
 QUOTED = "quoted"

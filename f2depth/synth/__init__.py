@@ -6,19 +6,14 @@ Modules: ``textures`` (procedural albedo), ``styles`` and ``layout`` (rooms and 
 ``scene`` (boxes, lights, baked radiance atlas), ``camera_path`` (handheld motion), ``render`` (ray
 casting), ``sensor`` (exposure, vignetting, noise), ``groundtruth`` (flow, occlusion, Kinect holes),
 ``writers`` and ``matfiles`` (file formats), ``plan`` and ``jobs`` (what to generate, one job per
-sequence), ``world`` (:func:`generate`, the entry point); ``chairs`` generates FlyingChairs-style flow
-training pairs on the fly (the flow_pretrain stage). The names below are imported from their module on
-first use, so importing one module of this package loads no other.
+sequence), ``world`` (:func:`generate`, the entry point). The names below are imported from their
+module on first use, so importing one module of this package loads no other.
 """
 
-import importlib
+from f2depth.lazy import lazy_getattr
 
 _HOMES = {"OutputPaths": "config", "SynthConfig": "config", "generate": "world", "FINISH": "world",
           "MANIFEST_VERSION": "world"}
 __all__ = sorted(_HOMES)
 
-
-def __getattr__(name: str):
-    if name not in _HOMES:
-        raise AttributeError(f"module 'f2depth.synth' has no attribute {name!r}")
-    return getattr(importlib.import_module(f"f2depth.synth.{_HOMES[name]}"), name)
+__getattr__ = lazy_getattr(__name__, _HOMES)

@@ -19,7 +19,7 @@ from pathlib import Path
 import cv2
 
 from f2depth.camera import NYU_RAW_CAMERA
-from f2depth.data.nyu_raw import list_frames, read_frame
+from f2depth.formats.nyu_raw import list_frames, read_frame
 from f2depth.io import atomic_path, write_json
 
 CAMERA_FILE = "camera.json"

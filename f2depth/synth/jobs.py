@@ -10,8 +10,8 @@ import cv2
 import numpy as np
 
 from f2depth.camera import NYU_RGB_DIST, NYU_RGB_K, distortion_maps
-from f2depth.data.sevenscenes import SEVENSCENES_K
-from f2depth.data.sintel import write_flo
+from f2depth.formats.sevenscenes import SEVENSCENES_K
+from f2depth.formats.sintel import write_flo
 from f2depth.io import write_rgb
 from f2depth.synth import writers
 from f2depth.synth.camera_path import PathStyle, handheld_path

@@ -1,6 +1,6 @@
 """What to generate: scene and sequence names, the NYU labeled split, and one job per sequence or scene.
 
-The test sets' stand-ins are those ``f2depth.eval.registry`` names (:data:`STANDINS` has their jobs).
+The test sets' stand-ins are those ``f2depth.protocols.registry`` names (:data:`STANDINS` has their jobs).
 
 Every random draw of a job comes from :func:`rng_for` keyed by the global seed and the job's names, so a
 job's output does not depend on which worker runs it or in which order.
@@ -141,11 +141,12 @@ STANDINS: dict[str, Callable[[SynthConfig], list[Job]]] = {
     "sevenscenes": _sevenscenes_jobs,
     "campus": _campus_jobs,
 }
-"""The jobs of each synthetic stand-in of a test set, by the name ``f2depth.eval.registry`` gives it."""
+"""The jobs of each synthetic stand-in of a test set, by the name ``f2depth.protocols.registry`` gives it."""
 
 
 def standins() -> list[str]:
-    """Every stand-in synth makes, in order (``f2depth.eval.registry`` names the one of each test set)."""
+    """Every stand-in synth makes, in order (``f2depth.protocols.registry`` names the one of each test
+    set)."""
     return list(STANDINS)
 
 

@@ -174,14 +174,50 @@ def _texture(mat: Material, rng: np.random.Generator, h: int, w: int) -> np.ndar
     raise ValueError(f"unknown material kind {k!r}")
 
 
+def _irradiance(pts: np.ndarray, normal: np.ndarray, positions: np.ndarray, powers: np.ndarray,
+                ambient: float, softness: float) -> np.ndarray:
+    """Lambertian irradiance (h,w,3) at surface points ``pts`` (h,w,3) m with unit ``normal`` from point
+    lights at ``positions`` (L,3) m of ``powers`` (L,3), each fall-off softened by ``softness`` m, plus
+    ``ambient`` (occlusion left to the caller)."""
+    irr = np.full(pts.shape[:2] + (3,), ambient, np.float64)
+    for lp, li in zip(positions, powers):
+        d = lp - pts
+        dist2 = np.einsum("hwc,hwc->hw", d, d)
+        cos = np.maximum(d @ normal, 0.0) / np.sqrt(dist2)
+        irr += (cos / (dist2 + softness**2))[..., None] * li
+    return irr
+
+
+def _scene(name: str, room: Box, boxes: list[Box], n_lights: int, tables: dict[str, list],
+           surface_ids: np.ndarray, chunks: list[np.ndarray], room_samples: list[np.ndarray],
+           target_grey: float) -> Scene:
+    """The baked faces (``bake``'s texel tables and radiance chunks) as a Scene with its exposure."""
+    atlas = np.concatenate(chunks).astype(np.float32)
+    lum = np.concatenate(room_samples).mean(axis=1)
+    # mid-grey for the typical wall/floor, but keep the brightest 2 % below the tone curve's shoulder
+    exposure = min(target_grey / max(float(np.median(lum)), 1e-6),
+                   0.75 / max(float(np.quantile(lum, 0.98)), 1e-6))
+    obstacles = np.array([[b.lo[0], b.lo[1], b.hi[0], b.hi[1]] for b in boxes if b.obstacle],
+                         np.float64).reshape(-1, 4)
+    return Scene(name=name, room_lo=np.asarray(room.lo, np.float64), room_hi=np.asarray(room.hi, np.float64),
+                 box_lo=np.array([b.lo for b in boxes], np.float64).reshape(-1, 3),
+                 box_hi=np.array([b.hi for b in boxes], np.float64).reshape(-1, 3),
+                 room_surface=surface_ids[0].copy(), box_surface=surface_ids[1:].copy(), obstacles=obstacles,
+                 tex_affine=np.array(tables["affine"], np.float32).T.copy(),
+                 offset=np.array(tables["offset"], np.int64), tex_w=np.array(tables["tex_w"], np.int32),
+                 tex_h=np.array(tables["tex_h"], np.int32), detail=np.array(tables["detail"], bool),
+                 density=np.array(tables["density"], np.float32),
+                 atlas_planes=tuple(np.ascontiguousarray(atlas[:, c]) for c in range(3)), exposure=exposure,
+                 info={"boxes": [b.label for b in boxes], "lights": n_lights})
+
+
 def bake(name: str, room: Box, boxes: list[Box], lights: list[Light], ambient: float,
          rng: np.random.Generator, target_grey: float = 0.18, softness: float = 0.7) -> Scene:
     """Generate every face texture, bake Lambertian lighting into it and build the atlas.
 
-    ``ambient`` is the indirect irradiance (same units as the lights' power / m²). ``target_grey`` is
-    the linear radiance the room's median wall/floor texel is exposed to. ``softness`` (m) is
-    added to the light distance in the inverse-square fall-off, as for a lamp of that size, so that
-    walls next to a lamp get a soft glow instead of a hot spot.
+    ``ambient`` is the indirect irradiance (same units as the lights' power / m²). ``target_grey`` is the
+    linear radiance the room's median wall/floor texel is exposed to. ``softness`` (m) is added to the light
+    distance in the inverse-square fall-off, as for a lamp of that size: a soft glow, not a hot spot.
     """
     all_boxes = [room, *boxes]
     lights_p = np.array([lt.position for lt in lights], np.float64).reshape(-1, 3)
@@ -219,43 +255,19 @@ def bake(name: str, room: Box, boxes: list[Box], lights: list[Light], ambient: f
                 pts[..., va] = ys[:, None]
                 axis, side = divmod(f, 2)
                 pts[..., axis] = hi[axis] if side else lo[axis]
-                irr = np.full((ch, cw, 3), ambient, np.float64)
-                for lp, li in zip(lights_p, lights_i):
-                    d = lp - pts
-                    dist2 = np.einsum("hwc,hwc->hw", d, d)
-                    cos = np.maximum(d @ normal, 0.0) / np.sqrt(dist2)
-                    irr += (cos / (dist2 + softness**2))[..., None] * li
+                irr = _irradiance(pts, normal, lights_p, lights_i, ambient, softness)
                 irr *= _occlusion(pts, normal, inside, np.asarray(room.hi, np.float64), boxes)[..., None]
                 irr = cv2.resize(irr.astype(np.float32), (tw, th), interpolation=cv2.INTER_LINEAR)
                 radiance = (albedo * irr).astype(np.float32)
                 if inside and f != 5:  # walls and floor set the exposure
                     room_samples.append(radiance[::4, ::4].reshape(-1, 3))
             surface_ids[b, f] = len(tables["offset"])
-            tables["offset"].append(offset)
-            tables["tex_w"].append(tw)
-            tables["tex_h"].append(th)
-            affine = np.zeros(8)
+            affine = np.zeros(8)  # texel x = affine[:3]·p + affine[3], y = affine[4:7]·p + affine[7]
             affine[ua], affine[3] = us * su, -min_u * su - 0.5
             affine[4 + va], affine[7] = vs * sv, -min_v * sv - 0.5
-            tables["affine"].append(affine)
-            tables["detail"].append(mat.kind in DETAIL_KINDS)
-            tables["density"].append(max(su, sv))
+            for key, value in (("offset", offset), ("tex_w", tw), ("tex_h", th), ("affine", affine),
+                               ("detail", mat.kind in DETAIL_KINDS), ("density", max(su, sv))):
+                tables[key].append(value)
             chunks.append(radiance.reshape(-1, 3))
             offset += tw * th
-    atlas = np.concatenate(chunks).astype(np.float32)
-    lum = np.concatenate(room_samples).mean(axis=1)
-    # mid-grey for the typical wall/floor, but keep the brightest 2 % below the tone curve's shoulder
-    exposure = min(target_grey / max(float(np.median(lum)), 1e-6),
-                   0.75 / max(float(np.quantile(lum, 0.98)), 1e-6))
-    obstacles = np.array([[b.lo[0], b.lo[1], b.hi[0], b.hi[1]] for b in boxes if b.obstacle],
-                         np.float64).reshape(-1, 4)
-    return Scene(name=name, room_lo=np.asarray(room.lo, np.float64), room_hi=np.asarray(room.hi, np.float64),
-                 box_lo=np.array([b.lo for b in boxes], np.float64).reshape(-1, 3),
-                 box_hi=np.array([b.hi for b in boxes], np.float64).reshape(-1, 3),
-                 room_surface=surface_ids[0].copy(), box_surface=surface_ids[1:].copy(), obstacles=obstacles,
-                 tex_affine=np.array(tables["affine"], np.float32).T.copy(),
-                 offset=np.array(tables["offset"], np.int64), tex_w=np.array(tables["tex_w"], np.int32),
-                 tex_h=np.array(tables["tex_h"], np.int32), detail=np.array(tables["detail"], bool),
-                 density=np.array(tables["density"], np.float32),
-                 atlas_planes=tuple(np.ascontiguousarray(atlas[:, c]) for c in range(3)), exposure=exposure,
-                 info={"boxes": [b.label for b in boxes], "lights": len(lights)})
+    return _scene(name, room, boxes, len(lights), tables, surface_ids, chunks, room_samples, target_grey)

@@ -21,19 +21,7 @@ from dataclasses import dataclass
 
 import torch
 
-from f2depth.colour import GREY_PIL, JITTER_OPS, adjust
-
-
-@dataclass(frozen=True)
-class AugmentConfig:
-    """Probabilities and ranges (P²Net's values by default)."""
-
-    flip_p: float = 0.5
-    jitter_p: float = 0.5
-    brightness: tuple[float, float] = (0.8, 1.2)
-    contrast: tuple[float, float] = (0.8, 1.2)
-    saturation: tuple[float, float] = (0.8, 1.2)
-    hue: tuple[float, float] = (-0.1, 0.1)
+from f2depth.colour import GREY_PIL, AugmentConfig, jitter
 
 
 @dataclass(frozen=True)
@@ -101,7 +89,4 @@ def color_jitter(img: torch.Tensor, d: AugmentDraw) -> torch.Tensor:
     image's own mean (leading dimensions are separate images)."""
     if not d.jitter:
         return img
-    factors = {"brightness": d.brightness, "contrast": d.contrast, "saturation": d.saturation, "hue": d.hue}
-    for op in d.order:
-        img = adjust(img, JITTER_OPS[op], factors[JITTER_OPS[op]], GREY_PIL)
-    return img
+    return jitter(img, (d.brightness, d.contrast, d.saturation, d.hue), d.order, GREY_PIL)

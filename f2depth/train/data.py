@@ -28,9 +28,10 @@ from dataclasses import dataclass
 import torch
 from torch.utils.data import Dataset
 
-from f2depth.data.images import to_tensor
-from f2depth.data.prepared import VAL_TUPLES, PreparedSet
+from f2depth.colour import P2NET_AUGMENT, AugmentConfig
 from f2depth.epochs import sample_generator
+from f2depth.formats.images import to_tensor
+from f2depth.formats.prepared import VAL_TUPLES, PreparedSet
 from f2depth.keypoints import KeypointFile, fill_up
 from f2depth.poses.store import PosePriors
 from f2depth.train import augment as A
@@ -46,7 +47,7 @@ STREAM_ORDER = 2
 class DataConfig:
     num_points: int = 3000
     augment: bool = True
-    augment_config: A.AugmentConfig = A.AugmentConfig()
+    augment_config: AugmentConfig = P2NET_AUGMENT
 
 
 class TupleDataset(Dataset):

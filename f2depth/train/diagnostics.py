@@ -6,7 +6,7 @@ prepared set carries ground truth (the embedded synthetic default: ``gt`` column
 epoch also measures, on the training tuples, without augmentation:
 
 * ``train_a1``, ``train_abs_rel``: δ<1.25 and AbsRel of the target depth, median-scaled per image over
-  the valid ground-truth pixels (``f2depth.eval.metrics.image_metrics``), averaged over targets;
+  the valid ground-truth pixels (``f2depth.protocols.metrics.image_metrics``), averaged over targets;
 * ``pose_rot_err``: mean angle (degrees) between the predicted and the true rotation of both source
   transforms (``1_T_0`` and ``-1_T_0``); ``pose_rot_true`` / ``pose_rot_pred``: the mean rotation angles;
 * ``pose_trans_cos``: mean cosine between the predicted and the true translation directions (1 = right
@@ -28,16 +28,17 @@ Real data has no ground truth: ``TrainTruth.from_prepared`` returns None and not
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 import torch
 from torch import nn
 
-from f2depth.data.images import to_tensor
-from f2depth.data.prepared import PreparedSet
-from f2depth.eval.metrics import EmptyMaskError, aggregate, image_metrics
-from f2depth.geometry import MAX_DEPTH, MIN_DEPTH, relative_pose, rigid_flow
+from f2depth.formats.images import to_tensor
+from f2depth.formats.prepared import PreparedSet
+from f2depth.geometry import MAX_DEPTH, MIN_DEPTH, endpoint_error, relative_pose, rigid_flow
 from f2depth.poses.store import PosePriors
+from f2depth.protocols.metrics import EmptyMaskError, aggregate, image_metrics
 from f2depth.train.step import pose_priors
 from f2depth.train.validate import evaluating
 
@@ -69,9 +70,10 @@ class TrainTruth:
     def __len__(self) -> int:
         return int(self.target.shape[0])
 
+    @cached_property
     def exact_flow(self) -> tuple[torch.Tensor, torch.Tensor]:
         """The exact rigid flow target → +1 (N,2,H,W) pixels, x first, float32, and where the target's
-        ground-truth depth is valid (N,1,H,W) bool."""
+        ground-truth depth is valid (N,1,H,W) bool (computed on first use, then kept)."""
         depth = torch.from_numpy(self.depth)[:, None].double()
         flow = rigid_flow(depth, self.K.expand(len(self), 3, 3), self.T_next)
         return flow.float(), depth > 0
@@ -130,7 +132,7 @@ def pose_errors(T_pred: torch.Tensor, T_true: torch.Tensor) -> dict[str, float]:
 
 def flow_epe(flow: torch.Tensor, exact: torch.Tensor, valid: torch.Tensor) -> float:
     """flow, exact (N,2,H,W) pixels, valid (N,1,H,W) bool → mean end-point error over the valid pixels."""
-    return float((flow.float() - exact).norm(dim=1, keepdim=True)[valid].mean())
+    return float(endpoint_error(flow.float(), exact)[valid].mean())
 
 
 @torch.no_grad()
@@ -138,7 +140,7 @@ def teacher_epe(teacher, truth: TrainTruth, device: torch.device | str = "cpu",
                 batch_size: int = 8) -> dict[str, float]:
     """The frozen teacher's flow target → +1 on ``truth``'s pairs against the exact rigid flow →
     ``{"teacher": EPE, "zero_flow": EPE}`` (pixels). ``teacher``: a ``FlowTeacher`` (its ``flow``)."""
-    exact, valid = truth.exact_flow()
+    exact, valid = truth.exact_flow
     flows = [teacher.flow(truth.target[s:s + batch_size].to(device), truth.next[s:s + batch_size].to(device))
              .cpu() for s in range(0, len(truth), batch_size)]
     return {"teacher": flow_epe(torch.cat(flows), exact, valid),
@@ -177,7 +179,7 @@ def diagnose(model: nn.Module, truth: TrainTruth, device: torch.device | str = "
     depth = np.concatenate(depths)
     out = depth_accuracy(depth, truth.depth, cfg.min_depth, cfg.max_depth)
     out.update(pose_errors(torch.cat(T_prev + T_next), torch.cat([truth.T_prev, truth.T_next])))
-    exact, valid = truth.exact_flow()
+    exact, valid = truth.exact_flow
     rigid = rigid_flow(torch.from_numpy(depth)[:, None].double(), truth.K.expand(len(truth), 3, 3),
                        torch.cat(T_next).double())
     out["rigid_epe"] = flow_epe(rigid, exact, valid)

@@ -19,10 +19,10 @@ import hashlib
 
 import torch
 
-from f2depth.data.errors import DataError
-from f2depth.data.images import to_tensor
-from f2depth.data.prepared import PreparedSet
+from f2depth.errors import DataError
 from f2depth.flow import FlowNetwork, load_flow_model
+from f2depth.formats.images import to_tensor
+from f2depth.formats.prepared import PreparedSet
 from f2depth.geometry import relative_pose, rigid_flow
 from f2depth.train.augment import flip_image
 from f2depth.train.teacher import FlowTeacher, TeacherOutput

@@ -25,7 +25,7 @@ import torch
 from torch import nn
 from torch.utils.data import DataLoader, Subset
 
-from f2depth.data.prepared import PreparedSet
+from f2depth.formats.prepared import PreparedSet
 from f2depth.keypoints import KeypointFile
 from f2depth.poses.store import PosePriors
 from f2depth.train.data import DataConfig, TupleDataset

@@ -25,10 +25,10 @@ from pathlib import Path
 from typing import Any
 
 from f2depth import processes, tracking
-from f2depth.data.errors import DataError
-from f2depth.data.prepared import VAL_TUPLES, PreparedSet
 from f2depth.depth import DepthModel, DepthModelConfig, save_checkpoint
 from f2depth.epochs import fingerprints
+from f2depth.errors import DataError
+from f2depth.formats.prepared import VAL_TUPLES, PreparedSet
 from f2depth.poses.store import PosePriors
 from f2depth.superpixels import scaled_min_area
 from f2depth.train.data import DataConfig, TupleDataset, batch_problem

@@ -1,5 +1,5 @@
 """The frozen flow network that supervises depth training (the paper §3.2, §3.3): any
-:class:`~f2depth.flow.network.FlowNetwork`, rebuilt from its checkpoint (PWC-Lite in the paper).
+:class:`~f2depth.flow.net.network.FlowNetwork`, rebuilt from its checkpoint (PWC-Lite in the paper).
 
 Eval mode, ``requires_grad=False`` on every weight and ``torch.no_grad`` around every call: nothing
 reaches its weights and it keeps no autograd graph. Per batch it computes, once:

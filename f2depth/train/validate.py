@@ -1,6 +1,6 @@
 """Per-epoch validation: δ1 and AbsRel on the NYU-format labeled test set, at the training size.
 
-The NYU protocol of ``f2depth.eval.nyu.evaluate_nyu`` (crop, median scaling, clip to [0.1, 10] m, metrics
+The NYU protocol of ``f2depth.protocols.nyu.evaluate_nyu`` (crop, median scaling, clip to [0.1, 10] m, metrics
 per image averaged) with the network input at the *training* size instead of 288×384 and no
 post-processing — cheap enough to run every epoch and before training (epoch 0). ``max_images`` evenly
 spaced test images keep it quick (up to ``CACHE_MAX`` of them are read once and kept in memory); the
@@ -18,10 +18,10 @@ import numpy as np
 import torch
 from torch import nn
 
-from f2depth.data.nyu_labeled import NYULabeledSet
 from f2depth.depth import disp_to_depth
-from f2depth.eval.metrics import PredictDisp
-from f2depth.eval.nyu import evaluate_nyu
+from f2depth.depth.predict import PredictDisp
+from f2depth.formats.nyu_labeled import NYULabeledSet
+from f2depth.protocols.nyu import evaluate_nyu
 
 #: Validation sets of at most this many images are read from the .mat once and kept in memory (~2 MB each).
 CACHE_MAX = 100

@@ -1,8 +1,8 @@
 """The typed sample every test-set loader returns, and the sample sets built from them.
 
-Every loader of a test set (``f2depth.data.nyu_labeled``, ``sevenscenes``, ``campus``) returns
+Every loader of a test set (``f2depth.formats.nyu_labeled``, ``sevenscenes``, ``campus``) returns
 :class:`EvalSample` s and has ``scene(i)`` (the scene of sample ``i`` without reading it): a
-:class:`SampleSet`. The evaluation protocols (``f2depth.eval``) read nothing else.
+:class:`SampleSet`. The evaluation protocols (``f2depth.protocols``) read nothing else.
 """
 
 from __future__ import annotations

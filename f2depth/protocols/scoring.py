@@ -1,7 +1,7 @@
 """The one scoring recipe of every test set, and its result type.
 
 P²Net's ``evaluation/nyuv2_eval_depth.py`` (Monodepth2's ``evaluate_depth.py``), on the
-:class:`~f2depth.data.samples.EvalSample` s of a loader, with a test set's :class:`Settings`:
+:class:`~f2depth.formats.samples.EvalSample` s of a loader, with a test set's :class:`Settings`:
 
 - dense ground truth (``depth``): crop image and ground truth (``crop``; NYU's Eigen crop), resize the rgb
   to the network size, predict (with flip post-processing when ``post_process``), upsample the disparity
@@ -9,9 +9,9 @@ P²Net's ``evaluation/nyuv2_eval_depth.py`` (Monodepth2's ``evaluate_depth.py``)
 - sparse ground truth (``points``): resize the full image (a portrait image runs at width×height when
   ``keep_orientation``), predict, read the disparity bilinearly at the points (:func:`sample_at_points`);
 - valid where ``min_gt_depth < gt ≤ max_gt_depth``, per-image median scaling, clip to
-  [``min_depth``, ``max_depth``], the eight metrics per image (``f2depth.eval.metrics``); an image without
-  a valid pixel is skipped (one warning line). Dataset numbers: the mean over images (``summary``), per
-  scene (``scenes``) and the unweighted mean of the scene rows (``average``).
+  [``min_depth``, ``max_depth``], the eight metrics per image (``f2depth.protocols.metrics``); an image
+  without a valid pixel is skipped (one warning line). Dataset numbers: the mean over images (``summary``),
+  per scene (``scenes``) and the unweighted mean of the scene rows (``average``).
 """
 
 from __future__ import annotations
@@ -27,26 +27,31 @@ import torch.nn.functional as F
 from tqdm import tqdm
 
 from f2depth import threads
-from f2depth.data.errors import DataError
-from f2depth.data.samples import EvalSample
-from f2depth.eval.inputs import batched, report_skipped, run_batch, run_batch_with_and_without_pp, to_input
-from f2depth.eval.metrics import (
+from f2depth.depth.predict import PredictDisp, depth_from_disparity
+from f2depth.errors import DataError
+from f2depth.formats.samples import EvalSample
+from f2depth.geometry import MAX_DEPTH, MIN_DEPTH
+from f2depth.protocols.inputs import (
+    batched,
+    report_skipped,
+    run_batch,
+    run_batch_with_and_without_pp,
+    to_input,
+)
+from f2depth.protocols.metrics import (
     METRIC_NAMES,
     EmptyMaskError,
-    PredictDisp,
     Summary,
     aggregate,
     clip_depth,
     compute_errors,
-    depth_from_disparity,
     image_metrics,
     mean_of_rows,
     stack_per_image,
 )
-from f2depth.geometry import MAX_DEPTH, MIN_DEPTH
 
 if TYPE_CHECKING:
-    from f2depth.eval.protocol import Protocol
+    from f2depth.protocols.protocol import Protocol
 
 log = logging.getLogger(__name__)
 
@@ -302,8 +307,8 @@ def score_with_and_without_pp(p: Protocol, s: Settings, samples: Iterable[EvalSa
                               predict_disp: PredictDisp, *, batch: int, device: str, keep: Sequence[int],
                               progress: bool) -> tuple[ProtocolResult, ProtocolResult]:
     """:func:`score` without and with flip post-processing (whatever ``s.post_process`` says), each batch
-    through the network once (:func:`~f2depth.eval.inputs.run_batch_with_and_without_pp`) → (without, with).
-    ``keep`` applies to both."""
+    through the network once (:func:`~f2depth.protocols.inputs.run_batch_with_and_without_pp`) → (without,
+    with). ``keep`` applies to both."""
     both = (replace(s, post_process=False), replace(s, post_process=True))
     tallies = (_Tally(), _Tally())
     for group in _groups(p, s, samples, tallies[0].nonfinite, batch, progress):

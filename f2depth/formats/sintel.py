@@ -22,8 +22,8 @@ import cv2
 import numpy as np
 import torch
 
-from f2depth.data.errors import DataError
-from f2depth.data.images import read_bytes, read_image, to_tensor
+from f2depth.errors import DataError
+from f2depth.formats.images import read_bytes, read_image, to_tensor
 
 FLO_MAGIC = 202021.25
 PASSES = ("clean", "final")

@@ -12,10 +12,10 @@ unweighted one (see tests/test_eval_published.py); details.json has both (``fram
 
 from __future__ import annotations
 
-from f2depth.data.samples import middle_frames
-from f2depth.data.sevenscenes import SevenScenesSet
-from f2depth.eval.protocol import Figure, Protocol, SceneRows
-from f2depth.eval.scoring import Settings
+from f2depth.formats.samples import middle_frames
+from f2depth.formats.sevenscenes import SevenScenesSet
+from f2depth.protocols.protocol import Figure, Protocol, SceneRows
+from f2depth.protocols.scoring import Settings
 
 PROTOCOL = Protocol(
     name="sevenscenes",

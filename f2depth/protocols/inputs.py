@@ -1,7 +1,7 @@
 """What every test set shares when it is scored: the network input, batched prediction.
 
-The samples themselves (:class:`~f2depth.data.samples.EvalSample`, the ``SampleSet`` interface) live with
-the data, in ``f2depth.data.samples``.
+The samples themselves (:class:`~f2depth.formats.samples.EvalSample`, the ``SampleSet`` interface) live with
+the data, in ``f2depth.formats.samples``.
 """
 
 from __future__ import annotations
@@ -13,8 +13,8 @@ from typing import TypeVar
 import numpy as np
 import torch
 
-from f2depth.data.images import resize_rgb
-from f2depth.eval.metrics import PredictDisp, predict_disparity, predict_with_and_without_pp
+from f2depth.depth.predict import PredictDisp, predict_disparity, predict_with_and_without_pp
+from f2depth.formats.images import resize_rgb
 
 T = TypeVar("T")
 log = logging.getLogger(__name__)
@@ -62,7 +62,7 @@ def run_batch_with_and_without_pp(predict_disp: PredictDisp, inputs: Sequence[to
                                   device: str | torch.device = "cpu", out_hw: tuple[int, int] | None = None,
                                   upsample: str = "nearest") -> tuple[np.ndarray, np.ndarray]:
     """:func:`run_batch` without and with PP from one forward pass
-    (:func:`~f2depth.eval.metrics.predict_with_and_without_pp`) → two disp (B,H,W) arrays."""
+    (:func:`~f2depth.depth.predict.predict_with_and_without_pp`) → two disp (B,H,W) arrays."""
     with torch.no_grad():
         plain, pp = predict_with_and_without_pp(predict_disp, torch.stack(list(inputs), 0).to(device),
                                                 out_hw=out_hw, upsample=upsample)

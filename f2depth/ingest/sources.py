@@ -1,7 +1,7 @@
 """Where frames come from: one image, a folder of images (sorted by name) or a video file (OpenCV).
 
 Every source yields :class:`Frame` objects lazily (a long video is never held in memory) and raises
-:class:`~f2depth.data.errors.DataError` naming the file on anything it cannot read.
+:class:`~f2depth.errors.DataError` naming the file on anything it cannot read.
 """
 
 from __future__ import annotations
@@ -19,8 +19,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from f2depth.data.errors import DataError
-from f2depth.data.images import read_image
+from f2depth.errors import DataError
+from f2depth.formats.images import read_image
 
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".jpe", ".bmp", ".ppm", ".pgm", ".pnm", ".tif", ".tiff", ".webp")
 VIDEO_EXTENSIONS = (".avi", ".mp4", ".mov", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg", ".wmv", ".mjpg",

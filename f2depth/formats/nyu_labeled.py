@@ -16,8 +16,8 @@ import numpy as np
 import scipy.io
 
 from f2depth.camera import NYU_SIZE_HW
-from f2depth.data.errors import DataError
-from f2depth.data.samples import EvalSample
+from f2depth.errors import DataError
+from f2depth.formats.samples import EvalSample
 
 SPLITS = ("train", "test", "all")
 GT_KEYS = ("depths", "rawDepths")
@@ -140,7 +140,7 @@ class NYULabeledSet:
     """The labeled images of one split, read lazily from the HDF5 file (one handle per process).
 
     ``split``: ``"test"`` (654 official), ``"train"`` or ``"all"``; ``gt``: ``"depths"`` (filled)
-    or ``"rawDepths"`` (0 = hole). Samples: :class:`~f2depth.data.samples.EvalSample` with rgb uint8
+    or ``"rawDepths"`` (0 = hole). Samples: :class:`~f2depth.formats.samples.EvalSample` with rgb uint8
     (480, 640, 3), depth float32 (480, 640) m and key ``(index,)``, one-based in the labeled set.
     """
 

@@ -8,7 +8,7 @@ import tempfile
 from collections.abc import Iterable
 from pathlib import Path
 
-from f2depth.data.errors import DataError
+from f2depth.errors import DataError
 
 
 def check_output_folder(folder: str | os.PathLike, option: str = "--output") -> Path:

@@ -17,8 +17,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from f2depth.flow.correlation import correlation
-from f2depth.flow.network import FlowNetwork
+from f2depth.flow.net.correlation import correlation
+from f2depth.flow.net.network import FlowNetwork
 from f2depth.geometry import resize_flow, warp
 
 PYRAMID_CHANNELS = (16, 32, 64, 96, 128, 192)
@@ -93,7 +93,7 @@ class ContextNetwork(nn.Module):
 
 
 class PWCLite(FlowNetwork):
-    """ARFlow's 2-frame PWC-Lite, the :class:`~f2depth.flow.network.FlowNetwork` named ``pwclite``.
+    """ARFlow's 2-frame PWC-Lite, the :class:`~f2depth.flow.net.network.FlowNetwork` named ``pwclite``.
 
     ``flows_fw, flows_bw = model(img1, img2, with_backward=True)``: images ``(B,3,H,W)`` in [0, 1] →
     two lists of five flows ``(B,2,h_i,w_i)``, finest first, level i at ``(⌈H/2^i⌉, ⌈W/2^i⌉)`` in pixels of

@@ -9,10 +9,10 @@ where gt > 0 (P²Net has no cap), median scaling, clip to [0.1, 10] m. Headline:
 
 from __future__ import annotations
 
-from f2depth.data.nyu_labeled import NYULabeledSet
-from f2depth.data.samples import spread
-from f2depth.eval.protocol import Figure, Protocol
-from f2depth.eval.scoring import Settings
+from f2depth.formats.nyu_labeled import NYULabeledSet
+from f2depth.formats.samples import spread
+from f2depth.protocols.protocol import Figure, Protocol
+from f2depth.protocols.scoring import Settings
 
 PROTOCOL = Protocol(
     name="nyu",

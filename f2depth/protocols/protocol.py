@@ -1,7 +1,7 @@
 """One interface for every test set: a :class:`Protocol` scores typed samples into a ``ProtocolResult``.
 
-A test set is the ``PROTOCOL`` of its module, listed in ``f2depth.eval.registry``: how its loader opens
-from params, the ``Settings`` it is scored with (``f2depth.eval.scoring``: one recipe for all), and how
+A test set is the ``PROTOCOL`` of its module, listed in ``f2depth.protocols.registry``: how its loader opens
+from params, the ``Settings`` it is scored with (``f2depth.protocols.scoring``: one recipe for all), and how
 the `evaluate` stage records it (details.json, per-image CSV, figures). How the `tables` stage shows it
 (overview columns, per-scene table, the paper's rows) is ``f2depth.report.layouts``: editing the paper's
 numbers re-runs the tables, never the evaluation or the training.
@@ -15,9 +15,16 @@ from typing import Any
 
 import numpy as np
 
-from f2depth.data.samples import EvalSample, SampleSet
-from f2depth.eval.metrics import METRIC_NAMES, PredictDisp
-from f2depth.eval.scoring import SETTING_NAMES, ProtocolResult, Settings, score, score_with_and_without_pp
+from f2depth.depth.predict import PredictDisp
+from f2depth.formats.samples import EvalSample, SampleSet
+from f2depth.protocols.metrics import METRIC_NAMES
+from f2depth.protocols.scoring import (
+    SETTING_NAMES,
+    ProtocolResult,
+    Settings,
+    score,
+    score_with_and_without_pp,
+)
 
 
 @dataclass(frozen=True)
@@ -41,7 +48,7 @@ class Figure:
 
 @dataclass(frozen=True)
 class Protocol:
-    """A test set, as the `evaluate` stage scores it (through ``f2depth.eval.registry``).
+    """A test set, as the `evaluate` stage scores it (through ``f2depth.protocols.registry``).
 
     ``name``: registry name (``evaluate.datasets``, headline groups ``<name>`` and ``<name>_pp``,
     ``<name>.csv``); ``title``: display name; ``open(get)``: its loader (a ``SampleSet``), ``get(key)``

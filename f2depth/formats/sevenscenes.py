@@ -18,9 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
-from f2depth.data.errors import DataError
-from f2depth.data.images import read_image, read_png16
-from f2depth.data.samples import EvalSample
+from f2depth.errors import DataError
+from f2depth.formats.images import read_image, read_png16
+from f2depth.formats.samples import EvalSample
 
 #: Nominal intrinsics of the 7-Scenes colour camera at 640×480.
 SEVENSCENES_K = np.array([[585.0, 0.0, 320.0], [0.0, 585.0, 240.0], [0.0, 0.0, 1.0]])
@@ -90,7 +90,7 @@ def read_depth_mm(path: str | os.PathLike, expect_hw: tuple[int, int] = SEVENSCE
 class SevenScenesSet:
     """Every ``stride``-th frame of the ``split`` sequences of ``scenes`` (default: all scene folders).
 
-    Samples: :class:`~f2depth.data.samples.EvalSample` with rgb uint8 (480, 640, 3), depth float32
+    Samples: :class:`~f2depth.formats.samples.EvalSample` with rgb uint8 (480, 640, 3), depth float32
     (480, 640) m (0 = invalid) and key ``(scene, seq, frame)``, e.g. ``("chess", "seq-03", 5)``."""
 
     def __init__(self, root: str | os.PathLike, split: str = "test", stride: int = 1,

@@ -1,7 +1,7 @@
 """Campus Indoor test set: sparse laser-measured points (the paper §4.1, §4.2.3; Tables 3 and 4).
 
 The full image resized to the network size (a portrait image runs at 384×288, so it is not squashed),
-the disparity read bilinearly at the points (``f2depth.eval.scoring.sample_at_points``) after the PP
+the disparity read bilinearly at the points (``f2depth.protocols.scoring.sample_at_points``) after the PP
 blend at the network resolution, valid points gt > 0, median scaling over the points of each image, clip
 to [0.1, 10] m, the metrics over the points. Headline: the mean of the scene rows (the paper's Table 3
 "average results of 18 scenes" equals the mean of its Table 4 scene rows). details.json also has the
@@ -11,9 +11,9 @@ Images run one at a time (their sizes differ).
 
 from __future__ import annotations
 
-from f2depth.data.campus import CampusSet
-from f2depth.eval.protocol import Protocol, SceneRows
-from f2depth.eval.scoring import Settings
+from f2depth.formats.campus import CampusSet
+from f2depth.protocols.protocol import Protocol, SceneRows
+from f2depth.protocols.scoring import Settings
 
 PROTOCOL = Protocol(
     name="campus",

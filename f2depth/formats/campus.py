@@ -16,9 +16,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from f2depth.data.errors import DataError
-from f2depth.data.images import decode, read_bytes, read_image
-from f2depth.data.samples import EvalSample
+from f2depth.errors import DataError
+from f2depth.formats.images import decode, read_bytes, read_image
+from f2depth.formats.samples import EvalSample
 
 HEADER = ["scene", "image", "u", "v", "depth_m"]
 IMAGE_EXTS = (".jpg", ".jpeg", ".png")
@@ -36,7 +36,7 @@ def _image_hw(path: Path) -> tuple[int, int]:
 
 
 class CampusSet:
-    """One sample per labelled image, sorted by (scene, image): :class:`~f2depth.data.samples.EvalSample`
+    """One sample per labelled image, sorted by (scene, image): :class:`~f2depth.formats.samples.EvalSample`
     with rgb uint8 (H, W, 3), points float64 (P, 3) = u, v, depth_m and key ``(scene, image file name)``."""
 
     def __init__(self, root: str | os.PathLike):

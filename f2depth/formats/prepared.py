@@ -3,6 +3,9 @@
 ``PreparedSet(root)`` validates the tables at construction (headers, unique ids, references between
 them, every referenced file present) and each image, ground-truth and segment file when it is read
 (size equal to ``camera.json``'s height × width).
+
+:func:`prepare_image` is how a raw frame becomes one of its images (undistort, crop, resize), the steps the
+``prepare`` stage, ``f2depth ingest`` and the keypoints' full-resolution source share.
 """
 
 from __future__ import annotations
@@ -13,11 +16,12 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
 import numpy as np
 
-from f2depth.camera import NYU_RAW_CAMERA, RawCamera
-from f2depth.data.errors import DataError
-from f2depth.data.images import read_image, read_png16
+from f2depth.camera import NYU_RAW_CAMERA, RawCamera, undistort_image
+from f2depth.errors import DataError
+from f2depth.formats.images import read_image, read_png16, resize_rgb
 
 FRAMES_HEADER = ["frame_id", "scene", "raw_file", "image", "gt"]
 TUPLES_HEADER = ["tuple_id", "scene", "target", "prev", "next", "segments"]
@@ -228,3 +232,49 @@ class PreparedSet:
     def segments(self, tuple_id: str) -> np.ndarray:
         """Felzenszwalb labels of the tuple's target, int64 (H, W), 0-based."""
         return read_png16(self.root / self.tuple(tuple_id).segments, self.hw).astype(np.int64)
+
+
+# ---- a prepared image: how a raw frame becomes one (the prepare stage, f2depth ingest, keypoints) -----
+
+def crop_border(image: np.ndarray, crop: int) -> np.ndarray:
+    """Cut ``crop`` px from every side of an (H, W[, C]) array (a view)."""
+    h, w = image.shape[:2]
+    if crop < 0 or 2 * crop >= min(h, w):
+        raise ValueError(f"crop {crop} leaves nothing of a {h}×{w} image")
+    return image[crop:h - crop, crop:w - crop]
+
+
+def resize_image(image: np.ndarray, hw: tuple[int, int], nearest: bool = False,
+                 interpolation: str = "area") -> np.ndarray:
+    """Resize an (H, W[, C]) array to ``hw`` as prepare does.
+
+    Images: ``interpolation`` ``lanczos`` (PIL, uint8 RGB, as P²Net) or ``area`` (``INTER_AREA`` when
+    shrinking, bilinear otherwise). ``nearest=True`` (depth): exact nearest-neighbour on pixel centres
+    (``INTER_NEAREST_EXACT``; plain ``INTER_NEAREST`` is offset by up to half a source pixel, which would
+    misalign depth and image).
+    """
+    if interpolation == "lanczos" and not nearest:
+        return resize_rgb(image, hw, "lanczos")
+    if nearest:
+        interp = cv2.INTER_NEAREST_EXACT
+    elif hw[0] <= image.shape[0] and hw[1] <= image.shape[1]:
+        interp = cv2.INTER_AREA
+    else:
+        interp = cv2.INTER_LINEAR
+    return cv2.resize(np.ascontiguousarray(image), (hw[1], hw[0]), interpolation=interp)
+
+
+def undistort_crop(raw_rgb: np.ndarray, crop: int, camera: RawCamera = NYU_RAW_CAMERA) -> np.ndarray:
+    """Distorted raw frame (``camera.hw``, 3) → undistorted RGB uint8 with ``crop`` px cut from every side,
+    at full resolution (NYU: (448, 608, 3) for crop 16): the image P²Net selects its keypoints on (its
+    ``datasets/nyu_dataset.py``). A camera without distortion (an ingested video) is only cropped."""
+    if raw_rgb.shape[:2] != tuple(camera.hw):
+        raise ValueError(f"a {raw_rgb.shape[:2]} frame for a camera of {camera.hw}")
+    undistorted = undistort_image(raw_rgb, camera.K, camera.dist) if np.any(camera.dist) else raw_rgb
+    return crop_border(undistorted, crop)
+
+
+def prepare_image(raw_rgb: np.ndarray, crop: int, hw: tuple[int, int], interpolation: str = "area",
+                  camera: RawCamera = NYU_RAW_CAMERA) -> np.ndarray:
+    """Distorted raw frame (``camera.hw``, 3) → undistorted, cropped, resized RGB uint8 (H, W, 3)."""
+    return resize_image(undistort_crop(raw_rgb, crop, camera), hw, interpolation=interpolation)

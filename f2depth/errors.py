@@ -1,4 +1,5 @@
-"""The one exception every loader raises on bad input data."""
+"""The one exception every loader raises on bad input data (:class:`DataError`), and the one of an unusable
+model file (:class:`CheckpointError`)."""
 
 from __future__ import annotations
 

@@ -18,8 +18,8 @@ from pathlib import Path
 import numpy as np
 
 from f2depth.camera import NYU_RAW_CAMERA, NYU_SIZE_HW, RawCamera
-from f2depth.data.errors import DataError
-from f2depth.data.images import read_image
+from f2depth.errors import DataError
+from f2depth.formats.images import read_image
 
 RAW_RGB_RE = re.compile(r"^r-(\d+(?:\.\d+)?)-(\d+)\.(?:ppm|png)$")
 CAMERA_FILE = "camera.json"  # of an ingested folder: RawCamera.to_json

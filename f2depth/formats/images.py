@@ -23,7 +23,7 @@ import numpy as np
 import torch
 from PIL import Image
 
-from f2depth.data.errors import DataError
+from f2depth.errors import DataError
 
 _FIX_REPLACE = "re-copy the file from the original dataset (or regenerate it with `dvc repro synth`)"
 _PNM_TOKEN = re.compile(rb"\s*(?:#[^\n]*\n\s*)*(\S+)")

@@ -2,7 +2,7 @@
 
 Everything goes through ``torch.load(..., weights_only=True)``: no pickled code is ever executed.
 
-:data:`NETWORKS` names every :class:`~f2depth.flow.network.FlowNetwork` implementation; a checkpoint of
+:data:`NETWORKS` names every :class:`~f2depth.flow.net.network.FlowNetwork` implementation; a checkpoint of
 ours records the name and the network's ``architecture()`` and is rebuilt through this registry.
 
 Ours: ``{"format": "f2depth.flow", "version": 2, "network", "network_kwargs", "state_dict", "config",
@@ -25,9 +25,9 @@ from typing import Any
 
 import torch
 
-from f2depth.data.errors import CheckpointError
-from f2depth.flow.network import FlowNetwork
-from f2depth.flow.pwclite import PWCLite
+from f2depth.errors import CheckpointError
+from f2depth.flow.net.network import FlowNetwork
+from f2depth.flow.net.pwclite import PWCLite
 from f2depth.io import damaged_weights, load_weights, torch_save, weights_digest
 
 #: Every flow network by the name that params.yaml (``flow_pretrain.network``) and checkpoints use.
@@ -43,7 +43,7 @@ _FIX_ARFLOW = ("pass an ARFlow PWC-Lite checkpoint such as Sintel/pwclite_raw.ta
 def build_network(name: str, **kwargs: Any) -> FlowNetwork:
     """A fresh (randomly initialised) network of :data:`NETWORKS` by name."""
     if name not in NETWORKS:
-        raise ValueError(f"unknown flow network {name!r}; f2depth.flow.checkpoint.NETWORKS has "
+        raise ValueError(f"unknown flow network {name!r}; f2depth.flow.net.checkpoint.NETWORKS has "
                          f"{sorted(NETWORKS)}")
     return NETWORKS[name](**kwargs)
 
@@ -54,7 +54,7 @@ def network_name(model: FlowNetwork) -> str:
         if type(model) is cls:
             return name
     raise ValueError(f"{type(model).__name__} is not a registered flow network; add it to "
-                     "f2depth.flow.checkpoint.NETWORKS")
+                     "f2depth.flow.net.checkpoint.NETWORKS")
 
 
 def _torch_load(path: str | os.PathLike) -> Any:
@@ -143,7 +143,7 @@ def _network_of(obj: Mapping[str, Any], path: str | os.PathLike) -> tuple[str, d
                               "`dvc repro flow_pretrain`")
     name = obj.get("network")
     if name not in NETWORKS:
-        raise CheckpointError(f"{path}: flow network {name!r} is not in f2depth.flow.checkpoint.NETWORKS "
+        raise CheckpointError(f"{path}: flow network {name!r} is not in f2depth.flow.net.checkpoint.NETWORKS "
                               f"({sorted(NETWORKS)})")
     return name, dict(obj.get("network_kwargs") or {})
 

@@ -1,6 +1,6 @@
 """The flow-network interface: all that pretraining, fine-tuning, evaluation and the frozen teacher of depth
-training use of a flow network. ARFlow's PWC-Lite (:class:`f2depth.flow.pwclite.PWCLite`) is the one the
-paper uses; the registry that names the implementations is ``f2depth.flow.checkpoint.NETWORKS``, and the
+training use of a flow network. ARFlow's PWC-Lite (:class:`f2depth.flow.net.pwclite.PWCLite`) is the one the
+paper uses; the registry that names the implementations is ``f2depth.flow.net.checkpoint.NETWORKS``, and the
 checkpoint records the name, so a model file rebuilds its own network (docs/flow_finetune.md, "Swapping
 the flow network").
 """
