@@ -33,7 +33,6 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE_ROOT = "f2depth/__init__.py"
-OLD_MARKER = "# library files the script imports: written by tools/dvc_deps.py --write"
 WIDTH = 120  # the flow lists' line length
 CODE_PREFIXES = ("stages/", "f2depth/")
 KEY_ORDER = ("cmd", "params", "deps", "outs", "metrics", "plots")
@@ -241,9 +240,8 @@ def _flow_list(key: str, groups: list[list[str]], indent: int) -> list[str]:
 
 
 def _comments(block: list[str], indent: int) -> list[str]:
-    """A block's comment lines (those of the old generated marker dropped), indented to go above its key."""
-    return [" " * indent + line.strip() for line in block
-            if line.strip().startswith("#") and line.strip() != OLD_MARKER]
+    """A block's comment lines, indented to go above its key."""
+    return [" " * indent + line.strip() for line in block if line.strip().startswith("#")]
 
 
 def _load_yaml(path: Path) -> dict:
